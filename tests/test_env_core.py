@@ -1,0 +1,143 @@
+"""The batched env core: shapes, layout, determinism, terminations, resets."""
+
+import numpy as np
+import pytest
+
+from tron1cli.config import EnvConfig, TerminationConfig
+from tron1cli.env import robot
+from tron1cli.env.core import Tron1Env
+from tron1cli.env.observations import ObsLayout
+
+
+def make_env(n=16, **kw) -> Tron1Env:
+    return Tron1Env(EnvConfig(num_envs=n, nthread=2, **kw))
+
+
+def test_layout_sizes_match_table_i():
+    lay = ObsLayout(history_len=5)
+    assert lay.proprio_dim == 27
+    assert lay.privileged_dim == 51
+    assert lay.history_dim == 5 * 27
+    sl = lay.slices("privileged")
+    assert sl["external_force"] == slice(48, 51)
+    assert sl["last_action"] == slice(21, 27)
+
+
+def test_step_shapes_and_finite():
+    env = make_env(32, history_len=3)
+    obs = env.reset()
+    assert obs["proprio"].shape == (32, 27)
+    assert obs["history"].shape == (32, 81)
+    assert obs["privileged"].shape == (32, 51)
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        res = env.step(rng.normal(0, 0.3, (32, 6)))
+        for v in res.obs.values():
+            assert np.isfinite(v).all()
+        assert res.done.shape == (32,)
+    # the newest history entry is the current o_t
+    np.testing.assert_array_equal(res.obs["history"][:, -27:], res.obs["proprio"])
+    env.close()
+
+
+def test_pd_targets_are_default_plus_scaled_action():
+    env = make_env(4)
+    env.reset()
+    a = np.tile([1.0, -2.0, 0.5, 0.0, 3.0, -1.0], (4, 1))
+    env.step(a)
+    np.testing.assert_allclose(env.targets, robot.DEFAULT_POSE + 0.25 * a)
+    np.testing.assert_allclose(env.physics.control[:, :, :6], np.repeat(env.targets[:, None], 4, axis=1))
+    # torques never exceed the motors' 80 N m
+    assert np.abs(env.state.joint_torque).max() <= robot.TORQUE_LIMIT + 1e-9
+    env.close()
+
+
+def _rollout(seed):
+    env = make_env(8, seed=seed)
+    env.reset()
+    rng = np.random.default_rng(123)
+    traj = []
+    for _ in range(80):
+        res = env.step(rng.normal(0, 0.5, (8, 6)))
+        traj.append(res.obs["privileged"].copy())
+    env.close()
+    return np.stack(traj)
+
+
+def test_same_seed_same_trajectory_bit_for_bit():
+    a, b = _rollout(3), _rollout(3)
+    np.testing.assert_array_equal(a, b)
+    c = _rollout(4)
+    assert not np.array_equal(a, c)
+
+
+def test_noise_only_on_the_student_copy():
+    env = make_env(8)
+    obs = env.reset()
+    lay = env.layout
+    p = obs["proprio"][:, lay.slices("proprio")["joint_pos"]]
+    e = obs["privileged"][:, lay.slices("privileged")["joint_pos"]]
+    assert not np.allclose(p, e)
+    assert np.abs(p - e).max() < 0.06  # 0.01 rad sigma
+    env.close()
+    quiet = Tron1Env(EnvConfig(num_envs=8, noise=EnvConfig().noise.__class__(enabled=False)))
+    obs = quiet.reset()
+    np.testing.assert_array_equal(obs["proprio"], obs["privileged"][:, :27])
+    quiet.close()
+
+
+def test_time_out_is_not_a_failure():
+    env = make_env(
+        4,
+        termination=TerminationConfig(episode_length_s=0.1, max_roll=10, max_pitch=10, contact_bodies=False),
+    )
+    env.reset()
+    for _ in range(5):
+        res = env.step(np.zeros((4, 6)))
+    assert res.time_out.all() and not res.failed.any()
+    np.testing.assert_allclose(res.episode["length_s"], 0.1)
+    assert (env.episode_step == 0).all()
+    env.close()
+
+
+def test_falls_terminate_and_reset():
+    env = make_env(16)
+    env.reset()
+    failed = 0
+    for _ in range(150):  # 3 s of zero action: a point-foot biped falls
+        res = env.step(np.zeros((16, 6)))
+        failed += res.failed.sum()
+        assert not res.time_out.any()
+    assert failed >= 16
+    assert (env.state.base_pos[:, 2] > 0.3).all()  # every fallen env was put back up
+    env.close()
+
+
+def test_unstable_sim_resets_that_env_and_counts_it():
+    env = make_env(4)
+    env.reset()
+    env.physics.state[2, env.physics.qvel_slice] = 1e9  # blow one world up
+    res = env.step(np.zeros((4, 6)))
+    assert res.unstable.tolist() == [False, False, True, False]
+    assert env.unstable_count == 1
+    assert np.isfinite(env.physics.state).all()
+    assert env.episode_step[2] == 0
+    env.close()
+
+
+def test_commands_in_range_with_standing_share():
+    env = make_env(512)
+    env.reset()
+    c = env.commands.value
+    cfg = env.cfg.commands
+    assert (c[:, 0] >= cfg.lin_vel_x[0]).all() and (c[:, 0] <= cfg.lin_vel_x[1]).all()
+    assert (np.abs(c[:, 2]) <= cfg.ang_vel_yaw[1]).all()
+    standing = (c == 0).all(axis=1).mean()
+    assert 0.03 < standing < 0.2
+    env.close()
+
+
+@pytest.mark.parametrize("bad", [dict(num_envs=0), dict(decimation=0), dict(history_len=0), dict(sim_dt=-1)])
+def test_bad_config_is_refused(bad):
+    with pytest.raises(ValueError):
+        EnvConfig(**bad)

@@ -1,0 +1,3 @@
+from tron1cli.cli.main import main
+
+main()

@@ -1,0 +1,24 @@
+"""Shared console handles and the one-line error convention of every subcommand."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from rich.console import Console
+
+#: results go to stdout, progress and errors to stderr
+out = Console()
+err = Console(stderr=True)
+
+
+def fail(message: str, code: int = 1) -> None:
+    """Print one line on stderr and exit with ``code`` (1 runtime, 2 usage)."""
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    sys.exit(code)
+
+
+def print_json(obj: dict) -> None:
+    """One JSON object on stdout, nothing else."""
+    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+    sys.stdout.flush()

@@ -1,0 +1,63 @@
+"""Entry point of the ``tron1`` command: registers the subcommands and maps errors to exit codes."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from typer.exceptions import TyperException
+
+from tron1cli import __version__
+from tron1cli.cli import bench as bench_cmd
+from tron1cli.cli.common import fail
+from tron1cli.errors import Tron1Error
+
+app = typer.Typer(
+    name="tron1",
+    help="Train, test and deploy LIPM-guided perceptive locomotion for the LimX TRON1 point-foot biped.",
+    invoke_without_command=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"tron1 {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    ctx: typer.Context,
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Train, test and deploy LIPM-guided perceptive locomotion for the LimX TRON1 point-foot biped."""
+    if ctx.invoked_subcommand is None:
+        typer.echo(ctx.get_help())
+
+
+app.command("bench")(bench_cmd.bench)
+
+
+def main() -> None:
+    """Run the CLI: a user's mistake gives one line on stderr and exit 2, a runtime failure exit 1."""
+    try:
+        code = app(standalone_mode=False)
+    except TyperException as e:  # typer's usage errors: bad option, bad value, missing argument
+        fail(e.format_message().splitlines()[0], getattr(e, "exit_code", 2))
+    except typer.Abort:
+        fail("aborted", 130)
+    except Tron1Error as e:
+        fail(str(e), e.exit_code)
+    except FileNotFoundError as e:
+        fail(str(e), 1)
+    except KeyboardInterrupt:
+        fail("interrupted", 130)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+if __name__ == "__main__":
+    main()

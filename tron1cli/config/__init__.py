@@ -1,0 +1,5 @@
+"""Run configuration: dataclasses with units in their docstrings, validated, never mutated."""
+
+from tron1cli.config.env import CommandConfig, EnvConfig, InitConfig, NoiseConfig, TerminationConfig
+
+__all__ = ["CommandConfig", "EnvConfig", "InitConfig", "NoiseConfig", "TerminationConfig"]

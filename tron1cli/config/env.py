@@ -1,0 +1,129 @@
+"""Environment configuration. Every field carries its unit; ``__post_init__`` validates only."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+
+def _check_range(name: str, lo_hi: tuple[float, float]) -> None:
+    lo, hi = lo_hi
+    if not lo <= hi:
+        raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
+
+
+@dataclass(frozen=True)
+class CommandConfig:
+    """Velocity commands, sampled uniformly per env.
+
+    lin_vel_x, lin_vel_y: m/s (base yaw frame); ang_vel_yaw: rad/s; resample_s: interval range (s)
+    between resamples; standing_share: fraction of commands that are exactly zero.
+    """
+
+    lin_vel_x: tuple[float, float] = (-1.0, 1.0)
+    lin_vel_y: tuple[float, float] = (-0.5, 0.5)
+    ang_vel_yaw: tuple[float, float] = (-0.5, 0.5)
+    resample_s: tuple[float, float] = (4.0, 8.0)
+    standing_share: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw", "resample_s"):
+            _check_range(name, getattr(self, name))
+        if self.resample_s[0] <= 0:
+            raise ValueError("resample_s must be positive")
+        if not 0.0 <= self.standing_share <= 1.0:
+            raise ValueError("standing_share must lie in [0, 1]")
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Gaussian observation noise on the student's proprioception (sigma in physical units)."""
+
+    enabled: bool = True
+    ang_vel: float = 0.05  # rad/s
+    gravity: float = 0.025  # unit vector components
+    joint_pos: float = 0.01  # rad
+    joint_vel: float = 0.01  # rad/s
+
+    def __post_init__(self) -> None:
+        if min(self.ang_vel, self.gravity, self.joint_pos, self.joint_vel) < 0:
+            raise ValueError("noise sigmas must be non-negative")
+
+
+@dataclass(frozen=True)
+class InitConfig:
+    """Randomised initial state at reset.
+
+    base_height: base origin height above the ground (m); joint_pos_noise: uniform +/- (rad) around
+    the default pose; base_vel_noise: uniform +/- (m/s, rad/s); tilt_noise: roll/pitch +/- (rad);
+    random_yaw: initial heading uniform in [-pi, pi).
+    """
+
+    base_height: float = 0.83
+    joint_pos_noise: float = 0.1
+    joint_vel_noise: float = 0.1
+    base_vel_noise: float = 0.2
+    tilt_noise: float = 0.05
+    random_yaw: bool = True
+
+
+@dataclass(frozen=True)
+class TerminationConfig:
+    """When an episode ends. Angles in rad, time in s."""
+
+    max_roll: float = 0.8
+    max_pitch: float = 0.8
+    contact_bodies: bool = True  # base or thigh touching the ground
+    episode_length_s: float = 20.0
+    max_qvel: float = 200.0  # |qvel| above this counts as an unstable simulation
+
+    def __post_init__(self) -> None:
+        if self.episode_length_s <= 0:
+            raise ValueError("episode_length_s must be positive")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The batched TRON1 environment.
+
+    num_envs: worlds stepped together; sim_dt: physics step (s); decimation: physics steps per
+    policy step (policy dt = sim_dt * decimation); history_len: past student observations o_t
+    stacked into o^H_t; nthread: physics threads; seed: master seed of every random stream.
+    """
+
+    num_envs: int = 1024
+    sim_dt: float = 0.005
+    decimation: int = 4
+    history_len: int = 5
+    nthread: int = 2
+    seed: int = 0
+    terrain: str = "flat"
+    commands: CommandConfig = field(default_factory=CommandConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
+
+    def __post_init__(self) -> None:
+        if self.num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {self.num_envs}")
+        if self.decimation < 1:
+            raise ValueError(f"decimation must be >= 1, got {self.decimation}")
+        if self.sim_dt <= 0:
+            raise ValueError(f"sim_dt must be positive, got {self.sim_dt}")
+        if self.history_len < 1:
+            raise ValueError(f"history_len must be >= 1, got {self.history_len}")
+        if self.nthread < 1:
+            raise ValueError(f"nthread must be >= 1, got {self.nthread}")
+
+    @property
+    def policy_dt(self) -> float:
+        """Policy period (s): 0.02 s (50 Hz) by default."""
+        return self.sim_dt * self.decimation
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Policy steps in one episode before a time-out."""
+        return int(round(self.termination.episode_length_s / self.policy_dt))
+
+    def to_dict(self) -> dict:
+        """Plain-dict form saved with every run."""
+        return asdict(self)

@@ -1,0 +1,47 @@
+"""Velocity commands: v_x, v_y (m/s, base yaw frame) and yaw rate (rad/s) per env."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tron1cli.config.env import CommandConfig
+
+
+class Commands:
+    """Per-env velocity commands, resampled at random intervals.
+
+    Attributes:
+        value: current command (N, 3): v_x, v_y, yaw rate.
+        time_left: seconds until each env's next resample (N,).
+    """
+
+    def __init__(self, cfg: CommandConfig, num_envs: int) -> None:
+        self.cfg = cfg
+        self.value = np.zeros((num_envs, 3))
+        self.time_left = np.zeros(num_envs)
+
+    def resample(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+        """Draw new commands and resample intervals for envs ``ids``."""
+        k = len(ids)
+        if k == 0:
+            return
+        c = self.cfg
+        lo = np.array([c.lin_vel_x[0], c.lin_vel_y[0], c.ang_vel_yaw[0]])
+        hi = np.array([c.lin_vel_x[1], c.lin_vel_y[1], c.ang_vel_yaw[1]])
+        cmd = rng.uniform(lo, hi, size=(k, 3))
+        standing = rng.random(k) < c.standing_share
+        cmd[standing] = 0.0
+        self.value[ids] = cmd
+        self.time_left[ids] = rng.uniform(*c.resample_s, size=k)
+
+    def tick(self, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """Advance the timers by ``dt`` (s); resample those that ran out; return their ids."""
+        self.time_left -= dt
+        due = np.flatnonzero(self.time_left <= 0.0)
+        self.resample(due, rng)
+        return due
+
+    def set(self, ids: np.ndarray, value: np.ndarray, hold_s: float = np.inf) -> None:
+        """Impose commands (k, 3) on envs ``ids`` for ``hold_s`` seconds (eval, deploy)."""
+        self.value[ids] = value
+        self.time_left[ids] = hold_s

@@ -1,0 +1,205 @@
+"""The batched TRON1 environment: actions in, observation groups, rewards and episode ends out.
+
+One step: action (N, 6) -> joint targets = default pose + 0.25 action -> PD inside MuJoCo
+(position actuators, Kp 40, Kd 2.5, torque clipped to 80 N m) for ``decimation`` physics steps ->
+robot state -> terminations -> rewards -> commands -> resets -> observations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tron1cli.config.env import EnvConfig
+from tron1cli.env import robot, terminations
+from tron1cli.env.commands import Commands
+from tron1cli.env.math3d import quat_from_euler
+from tron1cli.env.observations import ObsLayout, assemble
+from tron1cli.env.physics import BatchedPhysics
+from tron1cli.env.scene import build_model
+from tron1cli.env.state import RobotState, read_state
+
+ACTION_CLIP = 10.0  #: actions are clipped to +/- this before scaling
+
+
+@dataclass
+class StepResult:
+    """What one env step returns; every array has N rows.
+
+    obs: observation groups by name (see :class:`ObsLayout`), after resets.
+    terminal_obs: the same groups before resets, for value bootstrapping of time-outs.
+    rewards: reward per group (``stable``, ``loco``; one ``all`` group in the single-critic ablation).
+    """
+
+    obs: dict[str, np.ndarray]
+    terminal_obs: dict[str, np.ndarray]
+    rewards: dict[str, np.ndarray]
+    done: np.ndarray
+    time_out: np.ndarray
+    failed: np.ndarray
+    unstable: np.ndarray
+    episode: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class Tron1Env:
+    """N TRON1 worlds stepped together. See the module docstring for one step's order."""
+
+    def __init__(self, cfg: EnvConfig, reward_fn=None) -> None:
+        self.cfg = cfg
+        self.n = cfg.num_envs
+        self.layout = ObsLayout(history_len=cfg.history_len)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.model = build_model(cfg.sim_dt)
+        self.physics = BatchedPhysics([self.model] * self.n, nsub=cfg.decimation, nthread=cfg.nthread)
+        self.policy_dt = cfg.policy_dt
+        self.max_episode_steps = cfg.max_episode_steps
+        self.commands = Commands(cfg.commands, self.n)
+        self.reward_fn = reward_fn
+        nj = robot.NUM_JOINTS
+        self.actions = np.zeros((self.n, nj))
+        self.last_actions = np.zeros((self.n, nj))
+        self.last_last_actions = np.zeros((self.n, nj))
+        self.targets = np.tile(robot.DEFAULT_POSE, (self.n, 1))
+        self.external_wrench = np.zeros((self.n, 6))  # world frame force (N), torque (N m) on the base
+        self.episode_step = np.zeros(self.n, dtype=np.int64)
+        self.episode_return = np.zeros(self.n)
+        self.unstable_count = 0
+        self._ctrl = np.zeros((self.n, cfg.decimation, nj))
+        self._history = np.zeros((self.n, cfg.history_len, self.layout.proprio_dim), dtype=np.float32)
+        self._noise = {k: getattr(cfg.noise, k) for k in ("ang_vel", "gravity", "joint_pos", "joint_vel")}
+        self.state: RobotState | None = None
+        self.obs: dict[str, np.ndarray] = {}
+
+    # -- resets -----------------------------------------------------------------------------
+    def reset(self) -> dict[str, np.ndarray]:
+        """Reset every env; return the first observation groups."""
+        ids = np.arange(self.n)
+        self._reset_envs(ids)
+        self.state = read_state(self.physics)
+        self.obs = self._observe(ids_reset=ids)
+        return self.obs
+
+    def _reset_envs(self, ids: np.ndarray) -> None:
+        k = len(ids)
+        if k == 0:
+            return
+        c = self.cfg.init
+        rng = self.rng
+        qpos = np.zeros((k, self.physics.nq))
+        qvel = np.zeros((k, self.physics.nv))
+        qpos[:, 2] = c.base_height
+        yaw = rng.uniform(-np.pi, np.pi, k) if c.random_yaw else np.zeros(k)
+        tilt = rng.uniform(-c.tilt_noise, c.tilt_noise, (k, 2))
+        qpos[:, 3:7] = quat_from_euler(tilt[:, 0], tilt[:, 1], yaw)
+        jp = robot.DEFAULT_POSE + rng.uniform(-c.joint_pos_noise, c.joint_pos_noise, (k, robot.NUM_JOINTS))
+        qpos[:, 7:] = np.clip(jp, robot.JOINT_RANGES[:, 0], robot.JOINT_RANGES[:, 1])
+        qvel[:, 0:6] = rng.uniform(-c.base_vel_noise, c.base_vel_noise, (k, 6))
+        qvel[:, 6:] = rng.uniform(-c.joint_vel_noise, c.joint_vel_noise, (k, robot.NUM_JOINTS))
+        self.physics.set_state(ids, qpos, qvel)
+        self.targets[ids] = robot.DEFAULT_POSE
+        self.physics.forward(ids, self.targets[ids])
+        self.actions[ids] = 0.0
+        self.last_actions[ids] = 0.0
+        self.last_last_actions[ids] = 0.0
+        self.external_wrench[ids] = 0.0
+        self.episode_step[ids] = 0
+        self.episode_return[ids] = 0.0
+        self.commands.resample(ids, rng)
+
+    # -- stepping ---------------------------------------------------------------------------
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Advance every env by one policy step with ``actions`` (N, 6), unitless."""
+        if self.state is None:
+            raise RuntimeError("call reset() before step()")
+        self.last_last_actions[:] = self.last_actions
+        self.last_actions[:] = self.actions
+        self.actions[:] = np.clip(actions, -ACTION_CLIP, ACTION_CLIP)
+        self.targets[:] = robot.DEFAULT_POSE + robot.ACTION_SCALE * self.actions
+        self._ctrl[:] = self.targets[:, None, :]
+        self.physics.step(self._ctrl, self.external_wrench)
+        self.episode_step += 1
+
+        phys = self.physics
+        unstable = terminations.unstable_sim(
+            phys.state, self.episode_step * self.policy_dt, phys.qvel, self.cfg.termination.max_qvel
+        )
+        if unstable.any():
+            # a diverged world's arrays are meaningless: put the env back to a clean state first
+            bad = np.flatnonzero(unstable)
+            self.unstable_count += len(bad)
+            self._reset_envs(bad)
+        self.state = read_state(phys)
+        term = terminations.check(
+            self.cfg.termination,
+            self.state.projected_gravity,
+            self.state.body_contact,
+            unstable,
+            self.episode_step,
+            self.max_episode_steps,
+        )
+        rewards = self.reward_fn(self) if self.reward_fn is not None else {}
+        for r in rewards.values():
+            self.episode_return += np.where(unstable, 0.0, r)
+        self.commands.tick(self.policy_dt, self.rng)
+
+        done = term.done
+        ids = np.flatnonzero(done)
+        terminal_obs = self._observe(ids_reset=None, update_history=False) if len(ids) else {}
+        episode = {
+            "length_s": self.episode_step[ids] * self.policy_dt,
+            "return": self.episode_return[ids].copy(),
+            "time_out": term.time_out[ids],
+        }
+        if len(ids):
+            self._reset_envs(ids)
+            self.state.assign(ids, read_state(phys, ids))
+        self.obs = self._observe(ids_reset=ids)
+        return StepResult(
+            obs=self.obs,
+            terminal_obs=terminal_obs,
+            rewards=rewards,
+            done=done,
+            time_out=term.time_out,
+            failed=term.failed,
+            unstable=term.unstable,
+            episode=episode,
+        )
+
+    # -- observations -----------------------------------------------------------------------
+    def term_values(self) -> dict[str, np.ndarray]:
+        """Physical value of every observation term by name, each (N, dim)."""
+        s = self.state
+        return {
+            "base_ang_vel": s.base_ang_vel_b,
+            "projected_gravity": s.projected_gravity,
+            "joint_pos": s.joint_pos - robot.DEFAULT_POSE,
+            "joint_vel": s.joint_vel,
+            "command": self.commands.value,
+            "last_action": self.actions,
+            "base_lin_vel": s.base_lin_vel_b,
+            "joint_torque": s.joint_torque,
+            "joint_acc": s.joint_acc,
+            "foot_contact_force": s.foot_force.reshape(self.n, -1),
+            "external_force": self.external_wrench[:, :3],
+        }
+
+    def _observe(self, ids_reset: np.ndarray | None, update_history: bool = True) -> dict[str, np.ndarray]:
+        values = self.term_values()
+        lay = self.layout
+        noise = self._noise if self.cfg.noise.enabled else None
+        proprio = assemble(lay.proprio_terms, values, noise, self.rng)
+        privileged = assemble(lay.privileged_terms, values)
+        if update_history:
+            hist = self._history
+            hist[:, :-1] = hist[:, 1:]
+            hist[:, -1] = proprio
+            if ids_reset is not None and len(ids_reset):
+                hist[ids_reset] = proprio[ids_reset, None, :]
+            history = hist.reshape(self.n, -1).copy()
+        else:
+            history = np.concatenate([self._history[:, 1:], proprio[:, None, :]], axis=1).reshape(self.n, -1)
+        return {"proprio": proprio, "history": history, "privileged": privileged}
+
+    def close(self) -> None:
+        self.physics.close()

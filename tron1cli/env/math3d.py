@@ -1,0 +1,49 @@
+"""Batched rigid-body helpers on numpy arrays (quaternions in MuJoCo's w, x, y, z order)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def quat_rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate world vectors ``v`` (N, 3) into the frames of unit quaternions ``q`` (N, 4)."""
+    w = q[:, :1]
+    u = q[:, 1:]
+    t = 2.0 * np.cross(u, v)
+    return v - w * t + np.cross(u, t)
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate body-frame vectors ``v`` (N, 3) into the world by unit quaternions ``q`` (N, 4)."""
+    w = q[:, :1]
+    u = q[:, 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Heading angle (rad) of unit quaternions ``q`` (N, 4), in (-pi, pi]."""
+    w, x, y, z = q.T
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quat_from_euler(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Unit quaternions (N, 4) from intrinsic z-y-x (yaw, pitch, roll) angles in rad."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.stack(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ],
+        axis=-1,
+    )
+
+
+def rotate_z(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate the x, y components of ``v`` (N, >=2) by ``angle`` (N,) about z; returns (N, 2)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=-1)

@@ -1,0 +1,64 @@
+"""Episode ends: failures (falls, body contact), unstable simulations, and time-outs.
+
+Time-outs are reported apart from failures so that the learner bootstraps them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tron1cli.config.env import TerminationConfig
+
+
+@dataclass
+class Terminations:
+    """Boolean masks (N,) of one step's episode ends."""
+
+    failed: np.ndarray  # fell: body contact or excessive tilt
+    unstable: np.ndarray  # NaN, runaway velocity or a MuJoCo auto-reset inside the step
+    time_out: np.ndarray  # episode length reached (not a failure)
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.failed | self.unstable | self.time_out
+
+
+def tilt_exceeded(projected_gravity: np.ndarray, max_roll: float, max_pitch: float) -> np.ndarray:
+    """Whether roll or pitch exceeds its limit, from the gravity direction in the base frame (N, 3)."""
+    g = projected_gravity
+    roll = np.arctan2(-g[:, 1], -g[:, 2])
+    pitch = np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
+    return (np.abs(roll) > max_roll) | (np.abs(pitch) > max_pitch)
+
+
+def unstable_sim(
+    state: np.ndarray, expected_time: np.ndarray, qvel: np.ndarray, max_qvel: float
+) -> np.ndarray:
+    """Envs whose simulation diverged during the last step.
+
+    MuJoCo resets a diverging world by itself (its time restarts at 0), so a time that does not
+    match ``expected_time`` is as telling as a NaN or a runaway velocity.
+    """
+    bad = ~np.isfinite(state).all(axis=1)
+    bad |= np.abs(state[:, 0] - expected_time) > 1e-6
+    bad |= (np.abs(qvel) > max_qvel).any(axis=1)
+    return bad
+
+
+def check(
+    cfg: TerminationConfig,
+    projected_gravity: np.ndarray,
+    body_contact: np.ndarray,
+    unstable: np.ndarray,
+    episode_step: np.ndarray,
+    max_episode_steps: int,
+) -> Terminations:
+    """Combine the termination conditions of one step (all inputs have N rows)."""
+    failed = tilt_exceeded(projected_gravity, cfg.max_roll, cfg.max_pitch)
+    if cfg.contact_bodies:
+        failed |= body_contact
+    failed &= ~unstable
+    time_out = (episode_step >= max_episode_steps) & ~failed & ~unstable
+    return Terminations(failed=failed, unstable=unstable, time_out=time_out)
