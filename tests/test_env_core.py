@@ -3,13 +3,17 @@
 import numpy as np
 import pytest
 
-from tron1cli.config import EnvConfig, TerminationConfig
+from tron1cli.config import EnvConfig, GaitConfig, NoiseConfig, TerminationConfig
 from tron1cli.env import robot
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.observations import ObsLayout
+from tron1cli.env.rewards import make_reward_config
+
+PAPER = GaitConfig(enabled=False)  # the paper's layout exactly: no gait clock
 
 
 def make_env(n=16, **kw) -> Tron1Env:
+    kw.setdefault("gait", PAPER)
     return Tron1Env(EnvConfig(num_envs=n, nthread=2, **kw))
 
 
@@ -80,7 +84,7 @@ def test_noise_only_on_the_student_copy():
     assert not np.allclose(p, e)
     assert np.abs(p - e).max() < 0.06  # 0.01 rad sigma
     env.close()
-    quiet = Tron1Env(EnvConfig(num_envs=8, noise=EnvConfig().noise.__class__(enabled=False)))
+    quiet = make_env(8, noise=NoiseConfig(enabled=False))
     obs = quiet.reset()
     np.testing.assert_array_equal(obs["proprio"], obs["privileged"][:, :27])
     quiet.close()
@@ -141,3 +145,20 @@ def test_commands_in_range_with_standing_share():
 def test_bad_config_is_refused(bad):
     with pytest.raises(ValueError):
         EnvConfig(**bad)
+
+
+@pytest.mark.parametrize("ablation,groups", [("none", {"stable", "loco"}), ("single-critic", {"all"})])
+def test_step_returns_reward_groups_and_term_sums(ablation, groups):
+    env = Tron1Env(EnvConfig(num_envs=16, gait=PAPER), make_reward_config(ablation))
+    env.reset()
+    ended = 0
+    for _ in range(100):
+        res = env.step(np.zeros((16, 6)))
+        assert set(res.rewards) == groups
+        assert all(r.shape == (16,) and np.isfinite(r).all() for r in res.rewards.values())
+        ended += res.done.sum()
+        if res.done.any():
+            assert res.episode["reward/stable"].shape == (res.done.sum(),)
+    assert ended > 0
+    assert (env.lipm.r_stable > 0).all() and (env.lipm.r_stable <= 1).all()
+    env.close()

@@ -82,6 +82,29 @@ class TerminationConfig:
 
 
 @dataclass(frozen=True)
+class GaitConfig:
+    """The switchable gait prior (see tron1cli/env/gait.py).
+
+    enabled: clock in o_t and e_t plus the contact-schedule reward terms; freq_hz: range of the
+    gait frequency, sampled with each velocity command; offset: right leg's phase lag (periods);
+    stance: stance fraction of the period; width: smoothing of the schedule's edges (periods).
+    """
+
+    enabled: bool = True
+    freq_hz: tuple[float, float] = (1.5, 2.5)
+    offset: float = 0.5
+    stance: float = 0.5
+    width: float = 0.04
+
+    def __post_init__(self) -> None:
+        _check_range("freq_hz", self.freq_hz)
+        if self.freq_hz[0] <= 0:
+            raise ValueError("gait frequencies must be positive")
+        if not 0.0 < self.stance < 1.0:
+            raise ValueError("stance fraction must lie in (0, 1)")
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     """The batched TRON1 environment.
 
@@ -98,6 +121,7 @@ class EnvConfig:
     seed: int = 0
     terrain: str = "flat"
     commands: CommandConfig = field(default_factory=CommandConfig)
+    gait: GaitConfig = field(default_factory=GaitConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     init: InitConfig = field(default_factory=InitConfig)
     termination: TerminationConfig = field(default_factory=TerminationConfig)

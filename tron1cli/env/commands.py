@@ -4,21 +4,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from tron1cli.config.env import CommandConfig
+from tron1cli.config.env import CommandConfig, GaitConfig
 
 
 class Commands:
-    """Per-env velocity commands, resampled at random intervals.
+    """Per-env velocity commands and gait clock, resampled together at random intervals.
 
     Attributes:
         value: current command (N, 3): v_x, v_y, yaw rate.
         time_left: seconds until each env's next resample (N,).
+        gait_freq: gait frequency (N,) in Hz; gait_phase: clock phase (N,) in [0, 1).
     """
 
-    def __init__(self, cfg: CommandConfig, num_envs: int) -> None:
+    def __init__(self, cfg: CommandConfig, num_envs: int, gait: GaitConfig | None = None) -> None:
         self.cfg = cfg
+        self.gait = gait or GaitConfig()
         self.value = np.zeros((num_envs, 3))
         self.time_left = np.zeros(num_envs)
+        self.gait_freq = np.full(num_envs, float(np.mean(self.gait.freq_hz)))
+        self.gait_phase = np.zeros(num_envs)
 
     def resample(self, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Draw new commands and resample intervals for envs ``ids``."""
@@ -33,9 +37,15 @@ class Commands:
         cmd[standing] = 0.0
         self.value[ids] = cmd
         self.time_left[ids] = rng.uniform(*c.resample_s, size=k)
+        self.gait_freq[ids] = rng.uniform(*self.gait.freq_hz, size=k)
+
+    def restart_clock(self, ids: np.ndarray) -> None:
+        """Restart the gait clock of envs ``ids`` at phase 0 (at reset)."""
+        self.gait_phase[ids] = 0.0
 
     def tick(self, dt: float, rng: np.random.Generator) -> np.ndarray:
-        """Advance the timers by ``dt`` (s); resample those that ran out; return their ids."""
+        """Advance the clocks and timers by ``dt`` (s); resample those that ran out; return their ids."""
+        self.gait_phase = (self.gait_phase + self.gait_freq * dt) % 1.0
         self.time_left -= dt
         due = np.flatnonzero(self.time_left <= 0.0)
         self.resample(due, rng)

@@ -14,9 +14,12 @@ import numpy as np
 from tron1cli.config.env import EnvConfig
 from tron1cli.env import robot, terminations
 from tron1cli.env.commands import Commands
-from tron1cli.env.math3d import quat_from_euler
+from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
+from tron1cli.env.lipm import LipmTracker
+from tron1cli.env.math3d import quat_from_euler, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble
 from tron1cli.env.physics import BatchedPhysics
+from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model
 from tron1cli.env.state import RobotState, read_state
 
@@ -30,6 +33,8 @@ class StepResult:
     obs: observation groups by name (see :class:`ObsLayout`), after resets.
     terminal_obs: the same groups before resets, for value bootstrapping of time-outs.
     rewards: reward per group (``stable``, ``loco``; one ``all`` group in the single-critic ablation).
+    episode: figures of the episodes that ended this step (one entry per done env): ``length_s``,
+        ``time_out``, and ``reward/<term>`` per-term sums.
     """
 
     obs: dict[str, np.ndarray]
@@ -45,17 +50,22 @@ class StepResult:
 class Tron1Env:
     """N TRON1 worlds stepped together. See the module docstring for one step's order."""
 
-    def __init__(self, cfg: EnvConfig, reward_fn=None) -> None:
+    def __init__(self, cfg: EnvConfig, reward_cfg: RewardConfig | None = None) -> None:
         self.cfg = cfg
+        self.reward_cfg = reward_cfg or RewardConfig()
         self.n = cfg.num_envs
-        self.layout = ObsLayout(history_len=cfg.history_len)
+        self.layout = ObsLayout(history_len=cfg.history_len, gait_clock=cfg.gait.enabled)
         self.rng = np.random.default_rng(cfg.seed)
         self.model = build_model(cfg.sim_dt)
         self.physics = BatchedPhysics([self.model] * self.n, nsub=cfg.decimation, nthread=cfg.nthread)
         self.policy_dt = cfg.policy_dt
         self.max_episode_steps = cfg.max_episode_steps
-        self.commands = Commands(cfg.commands, self.n)
-        self.reward_fn = reward_fn
+        self.commands = Commands(cfg.commands, self.n, cfg.gait)
+        uses_clock = any(name.startswith("gait_") for name in self.reward_cfg.terms)
+        if uses_clock and not cfg.gait.enabled:
+            raise ValueError("the reward has gait-schedule terms but the env's gait prior is off")
+        self.rewards = RewardManager(self.reward_cfg, self.n, self.policy_dt)
+        self.lipm = LipmTracker(self.n, self.reward_cfg.lipm_kp, self.reward_cfg.z_c)
         nj = robot.NUM_JOINTS
         self.actions = np.zeros((self.n, nj))
         self.last_actions = np.zeros((self.n, nj))
@@ -63,7 +73,6 @@ class Tron1Env:
         self.targets = np.tile(robot.DEFAULT_POSE, (self.n, 1))
         self.external_wrench = np.zeros((self.n, 6))  # world frame force (N), torque (N m) on the base
         self.episode_step = np.zeros(self.n, dtype=np.int64)
-        self.episode_return = np.zeros(self.n)
         self.unstable_count = 0
         self._ctrl = np.zeros((self.n, cfg.decimation, nj))
         self._history = np.zeros((self.n, cfg.history_len, self.layout.proprio_dim), dtype=np.float32)
@@ -77,6 +86,7 @@ class Tron1Env:
         ids = np.arange(self.n)
         self._reset_envs(ids)
         self.state = read_state(self.physics)
+        self.lipm.reset(ids, self.state.foot_pos)
         self.obs = self._observe(ids_reset=ids)
         return self.obs
 
@@ -104,8 +114,8 @@ class Tron1Env:
         self.last_last_actions[ids] = 0.0
         self.external_wrench[ids] = 0.0
         self.episode_step[ids] = 0
-        self.episode_return[ids] = 0.0
         self.commands.resample(ids, rng)
+        self.commands.restart_clock(ids)
 
     # -- stepping ---------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> StepResult:
@@ -138,22 +148,23 @@ class Tron1Env:
             self.episode_step,
             self.max_episode_steps,
         )
-        rewards = self.reward_fn(self) if self.reward_fn is not None else {}
-        for r in rewards.values():
-            self.episode_return += np.where(unstable, 0.0, r)
+        self._update_lipm()
+        rewards = self.rewards.compute(self)
+        if unstable.any():
+            for r in rewards.values():
+                r[unstable] = 0.0
         self.commands.tick(self.policy_dt, self.rng)
 
         done = term.done
         ids = np.flatnonzero(done)
         terminal_obs = self._observe(ids_reset=None, update_history=False) if len(ids) else {}
-        episode = {
-            "length_s": self.episode_step[ids] * self.policy_dt,
-            "return": self.episode_return[ids].copy(),
-            "time_out": term.time_out[ids],
-        }
+        episode = {"length_s": self.episode_step[ids] * self.policy_dt, "time_out": term.time_out[ids]}
+        for name, sums in self.rewards.pop_episode_sums(ids).items():
+            episode[f"reward/{name}"] = sums
         if len(ids):
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
+            self.lipm.reset(ids, self.state.foot_pos[ids])
         self.obs = self._observe(ids_reset=ids)
         return StepResult(
             obs=self.obs,
@@ -164,6 +175,23 @@ class Tron1Env:
             failed=term.failed,
             unstable=term.unstable,
             episode=episode,
+        )
+
+    def ground_height(self, xy: np.ndarray) -> np.ndarray:
+        """Terrain height (m) under world points ``xy`` (N, 2): the flat ground is at 0."""
+        return np.zeros(len(xy))
+
+    def _update_lipm(self) -> None:
+        s = self.state
+        self.lipm.update(
+            contact_pos=s.foot_contact_pos,
+            normal_force=s.foot_force[:, :, 2],
+            com_pos=s.com_pos,
+            com_vel_xy=s.com_vel[:, :2],
+            v_cmd_xy_world=rotate_z(self.commands.value, yaw_of(s.base_quat)),
+            ground_height=self.ground_height(s.com_pos[:, :2]),
+            roll_rate=s.base_ang_vel_b[:, 0],
+            pitch_rate=s.base_ang_vel_b[:, 1],
         )
 
     # -- observations -----------------------------------------------------------------------
@@ -182,7 +210,13 @@ class Tron1Env:
             "joint_acc": s.joint_acc,
             "foot_contact_force": s.foot_force.reshape(self.n, -1),
             "external_force": self.external_wrench[:, :3],
+            "gait_clock": clock_observation(self.commands.gait_phase, self.commands.gait_freq),
         }
+
+    def desired_contact(self) -> np.ndarray:
+        """Desired contact (N, 2) in [0, 1] of the left and right foot under the gait clock."""
+        g = self.cfg.gait
+        return desired_contact(leg_phases(self.commands.gait_phase, g.offset), g.stance, g.width)
 
     def _observe(self, ids_reset: np.ndarray | None, update_history: bool = True) -> dict[str, np.ndarray]:
         values = self.term_values()

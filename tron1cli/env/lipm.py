@@ -102,3 +102,42 @@ def stable_reward(
     z_e = np.asarray(z_c, dtype=np.float64) - np.asarray(z, dtype=np.float64)
     w_e = np.abs(np.asarray(roll_rate, dtype=np.float64)) + np.abs(np.asarray(pitch_rate, dtype=np.float64))
     return np.exp(-np.linalg.norm(p_e, axis=-1) - np.abs(z_e) - w_e)
+
+
+class LipmTracker:
+    """Per-env LIPM quantities of the current step, with the ZMP held through flight phases.
+
+    Attributes (N rows each, world frame): ``zmp`` (N, 2), ``z`` (N,) plane intercept,
+    ``p_hat`` (N, 2) desired CoM, ``p_com`` (N, 2) actual CoM, ``r_stable`` (N,).
+    """
+
+    def __init__(self, num_envs: int, kp: float, z_c: float) -> None:
+        self.kp = kp
+        self.z_c = z_c
+        self.zmp = np.zeros((num_envs, 2))
+        self.z = np.full(num_envs, z_c)
+        self.p_hat = np.zeros((num_envs, 2))
+        self.p_com = np.zeros((num_envs, 2))
+        self.r_stable = np.ones(num_envs)
+
+    def reset(self, ids: np.ndarray, foot_pos: np.ndarray) -> None:
+        """Start envs ``ids`` with the ZMP midway between their feet (``foot_pos`` (k, 2, 3))."""
+        self.zmp[ids] = foot_pos[:, :, :2].mean(axis=1)
+
+    def update(
+        self,
+        contact_pos: np.ndarray,
+        normal_force: np.ndarray,
+        com_pos: np.ndarray,
+        com_vel_xy: np.ndarray,
+        v_cmd_xy_world: np.ndarray,
+        ground_height: np.ndarray,
+        roll_rate: np.ndarray,
+        pitch_rate: np.ndarray,
+    ) -> None:
+        """Recompute every quantity from one step's state (shapes as in the functions above)."""
+        self.zmp = zmp_from_contacts(contact_pos, normal_force, self.zmp)
+        self.z = plane_intercept(com_pos, ground_height)
+        self.p_com = com_pos[:, :2].copy()
+        self.p_hat = desired_com(self.zmp, self.z, v_cmd_xy_world, com_vel_xy, self.kp)
+        self.r_stable = stable_reward(self.p_hat, self.p_com, self.z, self.z_c, roll_rate, pitch_rate)

@@ -8,6 +8,9 @@ Groups (paper Table I):
 - ``privileged`` e_t (teacher): the same terms noise-free ("proprioception GT" 27), base linear
   velocity 3, joint torques 6, joint accelerations 6, foot contact forces 6, external force 3.
 
+With the gait prior on, the clock (sin, cos of the phase and the frequency: 3) ends o_t, so it is
+in o_t, o^H_t and e_t alike (30 / 54 wide); with it off the layout is exactly the paper's.
+
 Sizes are derived from the term tuples, never typed in. Each term is a named entry with a scale
 (applied after noise) and a noise sigma in physical units.
 """
@@ -43,6 +46,8 @@ PROPRIO_TERMS: tuple[ObsTerm, ...] = (
     ObsTerm("last_action", 6, 1.0),
 )
 
+GAIT_CLOCK_TERM = ObsTerm("gait_clock", 3, 1.0)
+
 PRIVILEGED_EXTRA_TERMS: tuple[ObsTerm, ...] = (
     ObsTerm("base_lin_vel", 3, 1.0),
     ObsTerm("joint_torque", 6, 1.0 / 40.0),
@@ -56,18 +61,19 @@ PRIVILEGED_EXTRA_TERMS: tuple[ObsTerm, ...] = (
 class ObsLayout:
     """Derived sizes and slices of every observation group.
 
-    history_len: number of o_t stacked in o^H_t.
+    history_len: number of o_t stacked in o^H_t; gait_clock: the gait prior's clock ends o_t.
     """
 
     history_len: int = 5
+    gait_clock: bool = False
 
     @property
     def proprio_terms(self) -> tuple[ObsTerm, ...]:
-        return PROPRIO_TERMS
+        return PROPRIO_TERMS + ((GAIT_CLOCK_TERM,) if self.gait_clock else ())
 
     @property
     def privileged_terms(self) -> tuple[ObsTerm, ...]:
-        return PROPRIO_TERMS + PRIVILEGED_EXTRA_TERMS
+        return self.proprio_terms + PRIVILEGED_EXTRA_TERMS
 
     @property
     def proprio_dim(self) -> int:
@@ -102,6 +108,7 @@ class ObsLayout:
         """Contract form (for checkpoints and ONNX metadata)."""
         return {
             "history_len": self.history_len,
+            "gait_clock": self.gait_clock,
             "sizes": self.sizes(),
             "proprio": [[t.name, t.dim, t.scale] for t in self.proprio_terms],
             "privileged": [[t.name, t.dim, t.scale] for t in self.privileged_terms],

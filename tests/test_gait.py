@@ -1,0 +1,73 @@
+"""The gait prior: schedule values, leg offset, layout growth, reward terms, consistency checks."""
+
+import numpy as np
+import pytest
+
+from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.env.core import Tron1Env
+from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
+from tron1cli.env.observations import ObsLayout
+from tron1cli.env.rewards import make_reward_config
+
+
+def test_desired_contact_by_hand():
+    # mid-stance 0.25: 0.5 (1 + tanh(6.25)) * (1 - 0.5 (1 + tanh(-6.25))) ~ 1 - 7.4e-6
+    c = desired_contact(np.array([0.25, 0.75, 0.0, 0.5]), stance=0.5, width=0.04)
+    t = np.tanh(6.25)
+    np.testing.assert_allclose(c[0], (0.5 * (1 + t)) ** 2, rtol=1e-12)
+    assert c[1] < 1e-5  # mid-swing
+    # at both edges one step is exactly half-way and the other is saturated
+    np.testing.assert_allclose(c[2], 0.5, atol=1e-6)
+    np.testing.assert_allclose(c[3], 0.5, atol=1e-6)
+
+
+def test_legs_are_half_a_period_apart():
+    phase = np.arange(100) / 100.0
+    lp = leg_phases(phase, 0.5)
+    np.testing.assert_allclose((lp[:, 1] - lp[:, 0]) % 1.0, 0.5)
+    c = desired_contact(lp)
+    # the right leg's schedule is the left one's shifted by half a period
+    np.testing.assert_allclose(c[:, 1], np.roll(c[:, 0], -50), atol=1e-12)
+    # away from the edges exactly one foot should be on the ground
+    mid = (np.abs(lp[:, 0] - 0.25) < 0.15) | (np.abs(lp[:, 0] - 0.75) < 0.15)
+    np.testing.assert_allclose(c[mid].sum(axis=1), 1.0, atol=1e-3)
+
+
+def test_clock_observation():
+    obs = clock_observation(np.array([0.0, 0.25]), np.array([2.0, 1.5]))
+    np.testing.assert_allclose(obs, [[0, 1, 2.0], [1, 0, 1.5]], atol=1e-12)
+
+
+def test_layout_grows_by_exactly_the_clock():
+    off, on = ObsLayout(history_len=4), ObsLayout(history_len=4, gait_clock=True)
+    assert on.proprio_dim - off.proprio_dim == 3
+    assert on.privileged_dim - off.privileged_dim == 3
+    assert on.history_dim - off.history_dim == 12
+    assert off.proprio_dim == 27 and off.privileged_dim == 51
+
+
+def test_clock_advances_and_restarts():
+    env = Tron1Env(
+        EnvConfig(num_envs=8, gait=GaitConfig(freq_hz=(2.0, 2.0))), make_reward_config(gait_prior=True)
+    )
+    obs = env.reset()
+    assert obs["proprio"].shape == (8, 30)
+    for _ in range(5):
+        res = env.step(np.zeros((8, 6)))
+    expected = np.where(res.done, 0.0, 5 * 2.0 * 0.02)
+    np.testing.assert_allclose(env.commands.gait_phase, expected)
+    assert {"reward/gait_swing_force", "reward/gait_stance_speed"} <= set(res.episode)
+    env.close()
+
+
+def test_gait_terms_need_the_clock():
+    with pytest.raises(ValueError, match="gait prior is off"):
+        Tron1Env(EnvConfig(num_envs=2, gait=GaitConfig(enabled=False)), make_reward_config(gait_prior=True))
+
+
+def test_gait_terms_join_the_locomotion_group():
+    cfg = make_reward_config(gait_prior=True)
+    assert cfg.terms["gait_swing_force"].group == "loco" and cfg.groups == ("stable", "loco")
+    single = make_reward_config("single-critic", gait_prior=True)
+    assert single.groups == ("all",)
+    assert "gait_swing_force" not in make_reward_config().terms

@@ -1,0 +1,42 @@
+"""Gait prior: a per-env phase clock and the desired contact schedule it implies.
+
+The clock is a switchable aid (DESIGN.md, "Learning to step on a CPU"), not part of the paper's
+method. Each env has a gait frequency f (Hz) and a phase phi in [0, 1) that advances by f * dt each
+policy step and restarts at 0 at reset. The left leg's phase is phi, the right leg's phi + offset
+(0.5: half a period apart). A leg should stand while its phase is below the stance fraction
+(0.5) and swing for the rest of the period. A standing command keeps the clock running: the
+robot steps in place, since a point-foot biped cannot stand still.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def leg_phases(phase: np.ndarray, offset: float = 0.5) -> np.ndarray:
+    """Phase of each leg (N, 2) in [0, 1): left = phase, right = phase + offset (mod 1)."""
+    return np.stack([phase % 1.0, (phase + offset) % 1.0], axis=1)
+
+
+def _step(x: np.ndarray, width: float) -> np.ndarray:
+    """Smooth step from 0 to 1 around x = 0, with transition width ``width`` (phase units)."""
+    return 0.5 * (1.0 + np.tanh(x / width))
+
+
+def desired_contact(leg_phase: np.ndarray, stance: float = 0.5, width: float = 0.04) -> np.ndarray:
+    """Smoothed desired contact in [0, 1] of legs at ``leg_phase`` (any shape, values in [0, 1)).
+
+    1 in the middle of stance [0, stance), 0 in the middle of swing, 0.5 at both transitions; the
+    transitions are tanh steps of width ``width``. The wrap-around copy keeps the schedule
+    periodic (a phase just below 1 is about to land).
+    """
+    p = leg_phase
+    on = _step(p, width) * (1.0 - _step(p - stance, width))
+    wrap = _step(p - 1.0, width) * (1.0 - _step(p - 1.0 - stance, width))
+    return on + wrap
+
+
+def clock_observation(phase: np.ndarray, freq: np.ndarray) -> np.ndarray:
+    """The clock as the policy sees it (N, 3): sin(2 pi phase), cos(2 pi phase), frequency (Hz)."""
+    a = 2.0 * np.pi * phase
+    return np.stack([np.sin(a), np.cos(a), freq], axis=1)

@@ -1,0 +1,246 @@
+"""The reward system: named terms, their weights and groups, the LIPM-guided fusion, ablations.
+
+Terms live in one registry keyed by name (:data:`TERMS`); a :class:`RewardConfig` says which
+terms are on, with which weight, in which group, and whether the stable reward gates them (the
+reward fusion module, RFM). The paper's reward (Table II) is
+
+    r = r_stable + 0.5 exp(4 d_e) + 0.5 r_stable exp(4 m_e) + r_reg
+
+with the stability group {stable} and the locomotion group {tracking, regularisers} for the
+double critic. Ablations are data: presets that remove, swap or regroup entries
+(:data:`ABLATIONS`), never branches in the code.
+
+With the gait prior on (the default of ``tron1 train``; see tron1cli/env/gait.py) two more
+locomotion terms follow a left/right contact schedule: ``gait_swing_force`` penalises ground
+force on a foot that should swing, ``gait_stance_speed`` the speed of a foot that should stand.
+With it off the reward is exactly the paper's.
+
+Every weight is multiplied by the policy period dt (0.02 s), for every term alike, as in the
+legged-robot literature the Table II weights come from; episode sums are therefore in
+"weight x seconds".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tron1cli.env import reward_terms as rt
+from tron1cli.env import robot
+
+if TYPE_CHECKING:
+    from tron1cli.env.core import Tron1Env
+
+STABLE = "stable"
+LOCO = "loco"
+ALL = "all"
+
+
+@dataclass(frozen=True)
+class TermCfg:
+    """One reward entry: ``weight`` (per second), ``group`` (critic), ``gated`` by r_stable (RFM)."""
+
+    weight: float
+    group: str = LOCO
+    gated: bool = False
+
+
+def _paper_terms() -> dict[str, TermCfg]:
+    return {
+        "stable": TermCfg(1.0, STABLE),
+        "track_lin_dir": TermCfg(0.5),
+        "track_lin_mag": TermCfg(0.5, gated=True),
+        "track_yaw": TermCfg(0.5),
+        "lin_vel_z": TermCfg(-2.0),
+        "joint_acc": TermCfg(-2.5e-7),
+        "joint_power": TermCfg(-2e-5),
+        "torque": TermCfg(-1e-4),
+        "action_rate": TermCfg(-0.01),
+        "action_smoothness": TermCfg(-0.01),
+        "collision": TermCfg(-1.0),
+        "joint_limit": TermCfg(-2.0),
+    }
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Which reward terms are on and how they combine.
+
+    terms: name -> TermCfg; lipm_kp: gain k_p of eq. 2 (1/s); z_c: upright standing intercept of
+    the CoM plane (m, the CoM height of the default pose); l2_alpha: scale of the l2 velocity
+    term; ablation: the preset this config came from (recorded with the run).
+    """
+
+    terms: Mapping[str, TermCfg] = field(default_factory=lambda: MappingProxyType(_paper_terms()))
+    lipm_kp: float = 1.0
+    z_c: float = robot.COM_HEIGHT_ZERO_POSE
+    l2_alpha: float = 4.0
+    gait_force_scale: float = 20.0
+    gait_speed_scale: float = 0.5
+    ablation: str = "none"
+
+    def __post_init__(self) -> None:
+        unknown = set(self.terms) - set(TERMS)
+        if unknown:
+            raise ValueError(f"unknown reward terms: {sorted(unknown)}")
+        if not self.terms:
+            raise ValueError("a reward needs at least one term")
+
+    @property
+    def groups(self) -> tuple[str, ...]:
+        """Reward groups in a fixed order (stable first), one critic each."""
+        gs = {t.group for t in self.terms.values()}
+        return tuple(sorted(gs, key=lambda g: (g != STABLE, g)))
+
+    def to_dict(self) -> dict:
+        return {
+            "terms": {k: vars(v).copy() for k, v in self.terms.items()},
+            "lipm_kp": self.lipm_kp,
+            "z_c": self.z_c,
+            "l2_alpha": self.l2_alpha,
+            "gait_force_scale": self.gait_force_scale,
+            "gait_speed_scale": self.gait_speed_scale,
+            "ablation": self.ablation,
+            "groups": list(self.groups),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> RewardConfig:
+        terms = {k: TermCfg(**v) for k, v in d["terms"].items()}
+        scalars = {k: v for k, v in d.items() if k not in ("terms", "groups")}
+        return cls(terms=MappingProxyType(terms), **scalars)
+
+
+def _with(cfg: RewardConfig, terms: dict[str, TermCfg], name: str) -> RewardConfig:
+    return replace(cfg, terms=MappingProxyType(terms), ablation=name)
+
+
+def _no_stable_reward(cfg: RewardConfig) -> RewardConfig:
+    terms = {k: replace(v, gated=False) for k, v in cfg.terms.items() if k != "stable"}
+    return _with(cfg, terms, "no-stable-reward")
+
+
+def _single_critic(cfg: RewardConfig) -> RewardConfig:
+    return _with(cfg, {k: replace(v, group=ALL) for k, v in cfg.terms.items()}, "single-critic")
+
+
+def _no_rfm(cfg: RewardConfig) -> RewardConfig:
+    return _with(cfg, {k: replace(v, gated=False) for k, v in cfg.terms.items()}, "no-rfm")
+
+
+def _l2_velocity(cfg: RewardConfig) -> RewardConfig:
+    terms = {k: v for k, v in cfg.terms.items() if k not in ("track_lin_dir", "track_lin_mag")}
+    terms["track_lin_l2"] = TermCfg(1.0, LOCO, gated=True)  # eq. 3 with eq. 6: r_stable (1 + r_vel)
+    return _with(cfg, terms, "l2-velocity")
+
+
+#: The paper's ablations (Sec. V-B, Table IV), each a function of a config returning a config.
+ABLATIONS: dict[str, Callable[[RewardConfig], RewardConfig]] = {
+    "none": lambda c: c,
+    "no-stable-reward": _no_stable_reward,
+    "single-critic": _single_critic,
+    "no-rfm": _no_rfm,
+    "l2-velocity": _l2_velocity,
+}
+
+
+#: The gait prior's contact-schedule terms (locomotion group), weights per second.
+GAIT_TERMS: dict[str, TermCfg] = {
+    "gait_swing_force": TermCfg(-1.0),
+    "gait_stance_speed": TermCfg(-1.0),
+}
+
+
+def make_reward_config(ablation: str = "none", gait_prior: bool = False, **overrides) -> RewardConfig:
+    """The paper's reward, plus the gait terms when ``gait_prior``, with an ablation preset applied.
+
+    The ablation acts on the paper's terms; the gait terms join the locomotion group (or the one
+    group of the single-critic ablation). ValueError names the valid presets.
+    """
+    if ablation not in ABLATIONS:
+        raise ValueError(f"unknown ablation '{ablation}'; choose from {', '.join(ABLATIONS)}")
+    cfg = ABLATIONS[ablation](RewardConfig(**overrides))
+    if gait_prior:
+        group = ALL if cfg.groups == (ALL,) else LOCO
+        terms = dict(cfg.terms) | {k: replace(v, group=group) for k, v in GAIT_TERMS.items()}
+        cfg = replace(cfg, terms=MappingProxyType(terms))
+    return cfg
+
+
+# -- term registry: plain functions of the env, one value per env ------------------------------
+def _v_cmd(env: Tron1Env) -> np.ndarray:
+    return env.commands.value[:, :2]
+
+
+def _v_xy(env: Tron1Env) -> np.ndarray:
+    return env.state.base_lin_vel_b[:, :2]
+
+
+def _swing_force(env: Tron1Env) -> np.ndarray:
+    f = np.linalg.norm(env.state.foot_force, axis=-1) / env.reward_cfg.gait_force_scale
+    return np.sum((1.0 - env.desired_contact()) * (1.0 - np.exp(-(f**2))), axis=1)
+
+
+def _stance_speed(env: Tron1Env) -> np.ndarray:
+    v = np.linalg.norm(env.state.foot_vel, axis=-1) / env.reward_cfg.gait_speed_scale
+    return np.sum(env.desired_contact() * (1.0 - np.exp(-(v**2))), axis=1)
+
+
+TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
+    "stable": lambda env: env.lipm.r_stable,
+    "track_lin_dir": lambda env: rt.track_direction(_v_cmd(env), _v_xy(env)),
+    "track_lin_mag": lambda env: rt.track_magnitude(_v_cmd(env), _v_xy(env)),
+    "track_lin_l2": lambda env: rt.track_lin_vel_l2(_v_cmd(env), _v_xy(env), env.reward_cfg.l2_alpha),
+    "track_yaw": lambda env: rt.track_yaw_rate(env.commands.value[:, 2], env.state.base_ang_vel_b[:, 2]),
+    "lin_vel_z": lambda env: rt.lin_vel_z_sq(env.state.base_lin_vel_b[:, 2]),
+    "joint_acc": lambda env: rt.joint_acc_sq(env.state.joint_acc),
+    "joint_power": lambda env: rt.joint_power(env.state.joint_torque, env.state.joint_vel),
+    "torque": lambda env: rt.torque_sq(env.state.joint_torque),
+    "action_rate": lambda env: rt.action_rate(env.actions, env.last_actions),
+    "action_smoothness": lambda env: rt.action_smoothness(
+        env.actions, env.last_actions, env.last_last_actions
+    ),
+    "collision": lambda env: rt.collisions(env.state.collision_count),
+    "joint_limit": lambda env: rt.joint_limit_violations(
+        env.state.joint_pos, env.state.joint_vel, robot.JOINT_RANGES, robot.VELOCITY_LIMIT
+    ),
+    "gait_swing_force": _swing_force,
+    "gait_stance_speed": _stance_speed,
+}
+
+
+class RewardManager:
+    """Evaluates the configured terms each step and keeps per-term episode sums.
+
+    ``compute`` returns the reward of every group, (N,) each, already multiplied by dt.
+    """
+
+    def __init__(self, cfg: RewardConfig, num_envs: int, dt: float) -> None:
+        self.cfg = cfg
+        self.dt = dt
+        self.episode_sums = {name: np.zeros(num_envs) for name in cfg.terms}
+        self.last_terms: dict[str, np.ndarray] = {}
+
+    def compute(self, env: Tron1Env) -> dict[str, np.ndarray]:
+        groups = {g: np.zeros(env.n) for g in self.cfg.groups}
+        r_stable = env.lipm.r_stable
+        for name, t in self.cfg.terms.items():
+            value = TERMS[name](env) * (t.weight * self.dt)
+            if t.gated:
+                value = value * r_stable
+            self.last_terms[name] = value
+            self.episode_sums[name] += value
+            groups[t.group] += value
+        return groups
+
+    def pop_episode_sums(self, ids: np.ndarray) -> dict[str, np.ndarray]:
+        """Per-term sums of the episodes that ended in envs ``ids``; resets those sums."""
+        out = {}
+        for name, s in self.episode_sums.items():
+            out[name] = s[ids].copy()
+            s[ids] = 0.0
+        return out
