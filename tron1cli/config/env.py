@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from tron1cli.env.terrain import TerrainConfig
+
 
 def _check_range(name: str, lo_hi: tuple[float, float]) -> None:
     lo, hi = lo_hi
@@ -120,6 +122,12 @@ class EnvConfig:
     nthread: int = 2
     seed: int = 0
     terrain: str = "flat"
+    terrain_cfg: TerrainConfig = field(default_factory=TerrainConfig)
+    curriculum: bool = True
+    max_init_level: int = 0
+    perception: bool = False
+    depth_hz: float = 30.0
+    depth_from: int = 0
     commands: CommandConfig = field(default_factory=CommandConfig)
     gait: GaitConfig = field(default_factory=GaitConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)

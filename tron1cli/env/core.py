@@ -7,21 +7,26 @@ robot state -> terminations -> rewards -> commands -> resets -> observations.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from tron1cli.config.env import EnvConfig
-from tron1cli.env import robot, terminations
+from tron1cli.env import robot, sensors, terminations
 from tron1cli.env.commands import Commands
+from tron1cli.env.curriculum import TerrainCurriculum
 from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
 from tron1cli.env.lipm import LipmTracker
-from tron1cli.env.math3d import quat_from_euler, rotate_z, yaw_of
+from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble
 from tron1cli.env.physics import BatchedPhysics
 from tron1cli.env.rewards import RewardConfig, RewardManager
-from tron1cli.env.scene import build_model
+from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.state import RobotState, read_state
+from tron1cli.env.terrain import TerrainBank, ground_height
+
+EDGE_MARGIN_M = 0.5  #: an env whose base comes this close to its tile's edge ends its episode (time-out)
 
 ACTION_CLIP = 10.0  #: actions are clipped to +/- this before scaling
 
@@ -54,10 +59,39 @@ class Tron1Env:
         self.cfg = cfg
         self.reward_cfg = reward_cfg or RewardConfig()
         self.n = cfg.num_envs
-        self.layout = ObsLayout(history_len=cfg.history_len, gait_clock=cfg.gait.enabled)
+        self.layout = ObsLayout(
+            history_len=cfg.history_len,
+            gait_clock=cfg.gait.enabled,
+            heightmap_dim=sensors.HeightScan().num_points if cfg.perception else 0,
+            depth_hw=(sensors.DepthCamera().height, sensors.DepthCamera().width) if cfg.perception else None,
+        )
         self.rng = np.random.default_rng(cfg.seed)
-        self.model = build_model(cfg.sim_dt)
-        self.physics = BatchedPhysics([self.model] * self.n, nsub=cfg.decimation, nthread=cfg.nthread)
+        self.bank = TerrainBank.from_name(cfg.terrain, cfg.terrain_cfg, seed=cfg.seed)
+        self.curriculum = TerrainCurriculum(
+            self.bank, self.n, self.rng, cfg.max_init_level, enabled=cfg.curriculum
+        )
+        self.model = build_model(cfg.sim_dt, self.bank)
+        if self.model.nhfield:
+            # one world per env, each holding its own tile (memory: envs x one tile, not the terrain)
+            models = [copy.copy(self.model) for _ in range(self.n)]
+            for i, m in enumerate(models):
+                set_tile(m, self.bank, int(self.curriculum.tile[i]))
+        else:
+            models = [self.model] * self.n
+        self.physics = BatchedPhysics(models, nsub=cfg.decimation, nthread=cfg.nthread)
+        self.edge = self.bank.half_extent - EDGE_MARGIN_M
+        self.height_scan = sensors.HeightScan() if cfg.perception else None
+        self.camera = sensors.DepthCamera() if cfg.perception else None
+        self.depth = np.zeros((self.n, 0, 0), dtype=np.float32)  # (N, H, W) held frames with perception
+        if self.camera is not None:
+            self.depth = np.full(
+                (self.n, self.camera.height, self.camera.width), self.camera.far, dtype=np.float32
+            )
+            self._depth_max = sensors.depth_max_maps(self.bank.heights)
+            cam = self.model.camera(robot.CAMERA_NAME)
+            self._cam_pos_b = cam.pos.copy()
+            self._cam_rot_b = quat_to_mat(cam.quat[None])[0]
+        self._depth_clock = 0.0
         self.policy_dt = cfg.policy_dt
         self.max_episode_steps = cfg.max_episode_steps
         self.commands = Commands(cfg.commands, self.n, cfg.gait)
@@ -73,6 +107,7 @@ class Tron1Env:
         self.targets = np.tile(robot.DEFAULT_POSE, (self.n, 1))
         self.external_wrench = np.zeros((self.n, 6))  # world frame force (N), torque (N m) on the base
         self.episode_step = np.zeros(self.n, dtype=np.int64)
+        self._steps_since_reset = np.zeros(self.n, dtype=np.int64)  # physics time = this x policy dt
         self.unstable_count = 0
         self._ctrl = np.zeros((self.n, cfg.decimation, nj))
         self._history = np.zeros((self.n, cfg.history_len, self.layout.proprio_dim), dtype=np.float32)
@@ -81,10 +116,16 @@ class Tron1Env:
         self.obs: dict[str, np.ndarray] = {}
 
     # -- resets -----------------------------------------------------------------------------
-    def reset(self) -> dict[str, np.ndarray]:
-        """Reset every env; return the first observation groups."""
+    def reset(self, stagger: bool = False) -> dict[str, np.ndarray]:
+        """Reset every env; return the first observation groups.
+
+        stagger: start each episode's clock at a random point of the episode length, so that
+        time-outs spread over time instead of arriving all at once (training).
+        """
         ids = np.arange(self.n)
         self._reset_envs(ids)
+        if stagger:
+            self.episode_step[:] = self.rng.integers(0, self.max_episode_steps, self.n)
         self.state = read_state(self.physics)
         self.lipm.reset(ids, self.state.foot_pos)
         self.obs = self._observe(ids_reset=ids)
@@ -114,8 +155,10 @@ class Tron1Env:
         self.last_last_actions[ids] = 0.0
         self.external_wrench[ids] = 0.0
         self.episode_step[ids] = 0
+        self._steps_since_reset[ids] = 0
         self.commands.resample(ids, rng)
         self.commands.restart_clock(ids)
+        self._render_depth(ids[ids >= self.cfg.depth_from])
 
     # -- stepping ---------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> StepResult:
@@ -129,10 +172,11 @@ class Tron1Env:
         self._ctrl[:] = self.targets[:, None, :]
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
+        self._steps_since_reset += 1
 
         phys = self.physics
         unstable = terminations.unstable_sim(
-            phys.state, self.episode_step * self.policy_dt, phys.qvel, self.cfg.termination.max_qvel
+            phys.state, self._steps_since_reset * self.policy_dt, phys.qvel, self.cfg.termination.max_qvel
         )
         if unstable.any():
             # a diverged world's arrays are meaningless: put the env back to a clean state first
@@ -140,6 +184,7 @@ class Tron1Env:
             self.unstable_count += len(bad)
             self._reset_envs(bad)
         self.state = read_state(phys)
+        xy = self.state.base_pos[:, :2]
         term = terminations.check(
             self.cfg.termination,
             self.state.projected_gravity,
@@ -147,6 +192,7 @@ class Tron1Env:
             unstable,
             self.episode_step,
             self.max_episode_steps,
+            left_tile=np.abs(xy).max(axis=1) > self.edge,
         )
         self._update_lipm()
         rewards = self.rewards.compute(self)
@@ -162,9 +208,16 @@ class Tron1Env:
         for name, sums in self.rewards.pop_episode_sums(ids).items():
             episode[f"reward/{name}"] = sums
         if len(ids):
+            commanded = np.linalg.norm(self.commands.value[ids, :2], axis=1) * episode["length_s"]
+            for i in self.curriculum.update(ids, np.linalg.norm(xy[ids], axis=1), commanded):
+                set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
+        self._depth_clock += self.policy_dt
+        if self.camera is not None and self._depth_clock >= 1.0 / self.cfg.depth_hz:
+            self._depth_clock -= 1.0 / self.cfg.depth_hz
+            self._render_depth(np.arange(self.cfg.depth_from, self.n))
         self.obs = self._observe(ids_reset=ids)
         return StepResult(
             obs=self.obs,
@@ -178,8 +231,36 @@ class Tron1Env:
         )
 
     def ground_height(self, xy: np.ndarray) -> np.ndarray:
-        """Terrain height (m) under world points ``xy`` (N, 2): the flat ground is at 0."""
-        return np.zeros(len(xy))
+        """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
+        return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)
+
+    def camera_pose(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World position (k, 3) and rotation (k, 3, 3; MuJoCo camera axes) of the depth camera."""
+        rot_b = quat_to_mat(self.physics.qpos[ids, 3:7])
+        pos = self.physics.qpos[ids, 0:3] + rot_b @ self._cam_pos_b
+        return pos, rot_b @ self._cam_rot_b
+
+    def _render_depth(self, ids: np.ndarray) -> None:
+        """Render the depth camera of envs ``ids`` (the frame is then held until the next render).
+
+        Only the terrain is rendered: the robot's own legs never appear in the image (the camera
+        looks 50 deg down and forward, where the real legs are rarely in view).
+        """
+        if self.camera is None or len(ids) == 0:
+            return
+        pos, rot = self.camera_pose(ids)
+        img = sensors.render_depth(
+            self.bank.heights,
+            self.curriculum.tile[ids],
+            pos,
+            rot,
+            self.camera,
+            self.bank.res,
+            max_maps=self._depth_max,
+        )
+        if self.cfg.noise.enabled:
+            img = sensors.add_depth_noise(img, self.camera, self.rng)
+        self.depth[ids] = img
 
     def _update_lipm(self) -> None:
         s = self.state
@@ -233,7 +314,14 @@ class Tron1Env:
             history = hist.reshape(self.n, -1).copy()
         else:
             history = np.concatenate([self._history[:, 1:], proprio[:, None, :]], axis=1).reshape(self.n, -1)
-        return {"proprio": proprio, "history": history, "privileged": privileged}
+        obs = {"proprio": proprio, "history": history, "privileged": privileged}
+        if self.height_scan is not None:
+            s = self.state
+            obs["heightmap"] = self.height_scan.scan(
+                self.bank.heights, self.curriculum.tile, s.base_pos, yaw_of(s.base_quat), self.bank.res
+            )
+            obs["depth"] = self.depth.copy()
+        return obs
 
     def close(self) -> None:
         self.physics.close()

@@ -7,6 +7,8 @@ Groups (paper Table I):
 - ``history`` o^H_t: the last ``history_len`` o_t, oldest first.
 - ``privileged`` e_t (teacher): the same terms noise-free ("proprioception GT" 27), base linear
   velocity 3, joint torques 6, joint accelerations 6, foot contact forces 6, external force 3.
+- with perception on: ``heightmap`` h_t (teacher, 441 = 21 x 21 terrain heights relative to the
+  base, m) and ``depth`` d_t (student, 60 x 80 z-depth image, m).
 
 With the gait prior on, the clock (sin, cos of the phase and the frequency: 3) ends o_t, so it is
 in o_t, o^H_t and e_t alike (30 / 54 wide); with it off the layout is exactly the paper's.
@@ -66,6 +68,8 @@ class ObsLayout:
 
     history_len: int = 5
     gait_clock: bool = False
+    heightmap_dim: int = 0
+    depth_hw: tuple[int, int] | None = None
 
     @property
     def proprio_terms(self) -> tuple[ObsTerm, ...]:
@@ -89,11 +93,12 @@ class ObsLayout:
 
     def sizes(self) -> dict[str, int]:
         """Width of every group, by name."""
-        return {
-            "proprio": self.proprio_dim,
-            "history": self.history_dim,
-            "privileged": self.privileged_dim,
-        }
+        sizes = {"proprio": self.proprio_dim, "history": self.history_dim, "privileged": self.privileged_dim}
+        if self.heightmap_dim:
+            sizes["heightmap"] = self.heightmap_dim
+        if self.depth_hw is not None:
+            sizes["depth"] = self.depth_hw[0] * self.depth_hw[1]
+        return sizes
 
     def slices(self, group: str) -> dict[str, slice]:
         """Slice of every term inside one group (``proprio`` or ``privileged``)."""
@@ -109,6 +114,8 @@ class ObsLayout:
         return {
             "history_len": self.history_len,
             "gait_clock": self.gait_clock,
+            "heightmap_dim": self.heightmap_dim,
+            "depth_hw": list(self.depth_hw) if self.depth_hw else None,
             "sizes": self.sizes(),
             "proprio": [[t.name, t.dim, t.scale] for t in self.proprio_terms],
             "privileged": [[t.name, t.dim, t.scale] for t in self.privileged_terms],

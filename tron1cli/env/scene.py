@@ -1,30 +1,67 @@
-"""Build the MuJoCo world of one env: our TRON1 model standing on the ground."""
+"""Build the MuJoCo world of one env: our TRON1 model standing on the ground.
+
+The ground is a plane on flat terrain, otherwise a height field holding one tile of a
+:class:`~tron1cli.env.terrain.TerrainBank`, centred on the world origin where the robot spawns.
+Every env's model has the same height-field size and z range (those of the whole bank), so a
+tile is swapped by rewriting ``hfield_data`` alone (:func:`set_tile`).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import mujoco
+import numpy as np
 
 from tron1cli.env import robot
+from tron1cli.env.terrain import TerrainBank
 
 GROUND_NAME = "ground"
+HFIELD_BASE_M = 0.5  #: thickness of the height field's solid base below its lowest point (m)
 
 
-def build_model(sim_dt: float = 0.005, asset: Path | None = None) -> mujoco.MjModel:
-    """The robot on a flat ground plane, with physics step ``sim_dt`` (s).
+def _ground_style() -> dict:
+    return dict(name=GROUND_NAME, contype=1, conaffinity=0, rgba=[0.55, 0.6, 0.55, 1.0])
 
-    The ground is the only geom the robot collides with (contype 1 / conaffinity 0 against the
-    robot's contype 0 / conaffinity 1), so there are no self-collisions.
+
+def build_model(
+    sim_dt: float = 0.005, bank: TerrainBank | None = None, asset: Path | None = None
+) -> mujoco.MjModel:
+    """The robot on the ground, with physics step ``sim_dt`` (s).
+
+    bank: terrain tiles; None or an all-flat bank gives a plane. The ground is the only geom the
+    robot collides with (contype 1 / conaffinity 0 against the robot's contype 0 / conaffinity 1),
+    so there are no self-collisions.
     """
     spec = robot.load_spec(asset)
     spec.option.timestep = sim_dt
-    spec.worldbody.add_geom(
-        name=GROUND_NAME,
-        type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[0.0, 0.0, 1.0],
-        contype=1,
-        conaffinity=0,
-        rgba=[0.55, 0.6, 0.55, 1.0],
+    if bank is None or not np.any(bank.heights):
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 1.0], **_ground_style())
+        return spec.compile()
+    lo, hi = hfield_range(bank)
+    half = (bank.R - 1) / 2 * bank.res
+    spec.add_hfield(
+        name="terrain",
+        nrow=bank.R,
+        ncol=bank.R,
+        size=[half, half, hi - lo, HFIELD_BASE_M],
+        userdata=np.zeros(bank.R * bank.R).tolist(),
     )
-    return spec.compile()
+    spec.worldbody.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain", pos=[0, 0, lo], **_ground_style()
+    )
+    model = spec.compile()
+    set_tile(model, bank, 0)
+    return model
+
+
+def hfield_range(bank: TerrainBank) -> tuple[float, float]:
+    """Lowest and highest terrain height of the bank (m); a flat bank gets a 1 cm range."""
+    lo, hi = float(bank.heights.min()), float(bank.heights.max())
+    return lo, max(hi, lo + 0.01)
+
+
+def set_tile(model: mujoco.MjModel, bank: TerrainBank, tile: int) -> None:
+    """Write tile ``tile`` of ``bank`` into the model's height field (row 0 at -y, column 0 at -x)."""
+    lo, hi = hfield_range(bank)
+    model.hfield_data[:] = ((bank.heights[tile] - lo) / (hi - lo)).ravel()

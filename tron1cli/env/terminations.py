@@ -54,11 +54,19 @@ def check(
     unstable: np.ndarray,
     episode_step: np.ndarray,
     max_episode_steps: int,
+    left_tile: np.ndarray | None = None,
 ) -> Terminations:
-    """Combine the termination conditions of one step (all inputs have N rows)."""
+    """Combine the termination conditions of one step (all inputs have N rows).
+
+    Reaching the edge of the terrain tile ends the episode as a time-out: the robot did nothing
+    wrong, there is just no more ground.
+    """
     failed = tilt_exceeded(projected_gravity, cfg.max_roll, cfg.max_pitch)
     if cfg.contact_bodies:
         failed |= body_contact
     failed &= ~unstable
-    time_out = (episode_step >= max_episode_steps) & ~failed & ~unstable
+    time_out = episode_step >= max_episode_steps
+    if left_tile is not None:
+        time_out = time_out | left_tile
+    time_out &= ~failed & ~unstable
     return Terminations(failed=failed, unstable=unstable, time_out=time_out)

@@ -1,0 +1,71 @@
+"""Terrain curriculum: envs move up a difficulty level after walking far, down after not.
+
+As in the legged-robot literature (Rudin et al., "learning to walk in minutes"): at the end of an
+episode an env that walked farther than ``up_distance`` from its spawn point (the tile centre)
+moves up one level; one that walked less than ``down_share`` of the distance its commands asked
+for moves down one. Envs that pass the top level stay there. Each env keeps its terrain type,
+assigned round-robin over the bank's types, and draws a new variant tile at every change.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tron1cli.env.terrain import TerrainBank
+
+
+class TerrainCurriculum:
+    """Per-env terrain type, level and tile index into ``bank``.
+
+    up_distance: m walked from the tile centre to move up (default: 60 % of the half tile);
+    down_share: fraction of the commanded distance below which an env moves down;
+    max_init_level: envs start on levels 0..max_init_level.
+    """
+
+    def __init__(
+        self,
+        bank: TerrainBank,
+        num_envs: int,
+        rng: np.random.Generator,
+        max_init_level: int = 0,
+        up_distance: float | None = None,
+        down_share: float = 0.5,
+        enabled: bool = True,
+    ) -> None:
+        self.bank = bank
+        self.rng = rng
+        self.enabled = enabled
+        self.num_levels = bank.cfg.num_levels
+        self.up_distance = up_distance if up_distance is not None else 0.6 * bank.half_extent
+        self.down_share = down_share
+        self.kind = np.arange(num_envs) % len(bank.types)
+        top = min(max_init_level, self.num_levels - 1)
+        self.level = rng.integers(0, top + 1, num_envs)
+        self.tile = self._draw_tiles(np.arange(num_envs))
+
+    def _draw_tiles(self, ids: np.ndarray) -> np.ndarray:
+        variant = self.rng.integers(0, self.bank.cfg.variants_per_level, len(ids))
+        return np.asarray(self.bank.tile_index(self.kind[ids], self.level[ids], variant))
+
+    def update(self, ids: np.ndarray, distance: np.ndarray, commanded: np.ndarray) -> np.ndarray:
+        """Move envs ``ids`` whose episode ended; distance walked and commanded (m), (k,) each.
+
+        Returns the ids whose tile changed (their worlds need the new height field).
+        """
+        if not self.enabled or len(ids) == 0:
+            return np.empty(0, dtype=np.int64)
+        up = distance > self.up_distance
+        down = (distance < self.down_share * commanded) & ~up
+        new = np.clip(self.level[ids] + up.astype(int) - down.astype(int), 0, self.num_levels - 1)
+        changed = ids[new != self.level[ids]]
+        self.level[ids] = new
+        self.tile[changed] = self._draw_tiles(changed)
+        return changed
+
+    def mean_levels(self) -> dict[str, float]:
+        """Mean level per terrain type (0 = easiest, num_levels - 1 = the paper's hardest)."""
+        return {
+            t: float(self.level[self.kind == i].mean())
+            for i, t in enumerate(self.bank.types)
+            if np.any(self.kind == i)
+        }
