@@ -9,6 +9,7 @@ from typer.exceptions import TyperException
 
 from tron1cli import __version__
 from tron1cli.cli import bench as bench_cmd
+from tron1cli.cli import train as train_cmd
 from tron1cli.cli.common import fail
 from tron1cli.errors import Tron1Error
 
@@ -39,6 +40,7 @@ def _root(
         typer.echo(ctx.get_help())
 
 
+app.command("train")(train_cmd.train)
 app.command("bench")(bench_cmd.bench)
 
 

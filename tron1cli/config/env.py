@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TerrainConfig
 
 
@@ -128,6 +129,8 @@ class EnvConfig:
     perception: bool = False
     depth_hz: float = 30.0
     depth_from: int = 0
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    pushes: PushConfig = field(default_factory=PushConfig)
     commands: CommandConfig = field(default_factory=CommandConfig)
     gait: GaitConfig = field(default_factory=GaitConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)

@@ -21,6 +21,7 @@ from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble
 from tron1cli.env.physics import BatchedPhysics
+from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.state import RobotState, read_state
@@ -71,14 +72,17 @@ class Tron1Env:
             self.bank, self.n, self.rng, cfg.max_init_level, enabled=cfg.curriculum
         )
         self.model = build_model(cfg.sim_dt, self.bank)
-        if self.model.nhfield:
-            # one world per env, each holding its own tile (memory: envs x one tile, not the terrain)
+        if self.model.nhfield or cfg.randomization.terms:
+            # one world per env: its own tile and its own randomised parameters
+            # (memory: envs x one tile, not envs x the terrain)
             models = [copy.copy(self.model) for _ in range(self.n)]
             for i, m in enumerate(models):
-                set_tile(m, self.bank, int(self.curriculum.tile[i]))
+                if self.model.nhfield:
+                    set_tile(m, self.bank, int(self.curriculum.tile[i]))
         else:
             models = [self.model] * self.n
         self.physics = BatchedPhysics(models, nsub=cfg.decimation, nthread=cfg.nthread)
+        self.randomizer = Randomizer(cfg.randomization, models, cfg.sim_dt, cfg.decimation)
         self.edge = self.bank.half_extent - EDGE_MARGIN_M
         self.height_scan = sensors.HeightScan() if cfg.perception else None
         self.camera = sensors.DepthCamera() if cfg.perception else None
@@ -106,6 +110,8 @@ class Tron1Env:
         self.last_last_actions = np.zeros((self.n, nj))
         self.targets = np.tile(robot.DEFAULT_POSE, (self.n, 1))
         self.external_wrench = np.zeros((self.n, 6))  # world frame force (N), torque (N m) on the base
+        self.pusher = Pusher(cfg.pushes, self.n, self.external_wrench)
+        self._prev_targets = np.tile(robot.DEFAULT_POSE, (self.n, 1))
         self.episode_step = np.zeros(self.n, dtype=np.int64)
         self._steps_since_reset = np.zeros(self.n, dtype=np.int64)  # physics time = this x policy dt
         self.unstable_count = 0
@@ -147,13 +153,14 @@ class Tron1Env:
         qpos[:, 7:] = np.clip(jp, robot.JOINT_RANGES[:, 0], robot.JOINT_RANGES[:, 1])
         qvel[:, 0:6] = rng.uniform(-c.base_vel_noise, c.base_vel_noise, (k, 6))
         qvel[:, 6:] = rng.uniform(-c.joint_vel_noise, c.joint_vel_noise, (k, robot.NUM_JOINTS))
+        self.randomizer.apply(ids, rng)
         self.physics.set_state(ids, qpos, qvel)
         self.targets[ids] = robot.DEFAULT_POSE
         self.physics.forward(ids, self.targets[ids])
         self.actions[ids] = 0.0
         self.last_actions[ids] = 0.0
         self.last_last_actions[ids] = 0.0
-        self.external_wrench[ids] = 0.0
+        self.pusher.reset(ids, rng)
         self.episode_step[ids] = 0
         self._steps_since_reset[ids] = 0
         self.commands.resample(ids, rng)
@@ -168,8 +175,13 @@ class Tron1Env:
         self.last_last_actions[:] = self.last_actions
         self.last_actions[:] = self.actions
         self.actions[:] = np.clip(actions, -ACTION_CLIP, ACTION_CLIP)
+        self._prev_targets[:] = self.targets
         self.targets[:] = robot.DEFAULT_POSE + robot.ACTION_SCALE * self.actions
         self._ctrl[:] = self.targets[:, None, :]
+        late = np.arange(self.cfg.decimation)[None, :] < self.randomizer.delay_steps[:, None]
+        if late.any():  # system delay: the old target holds until the new one arrives
+            self._ctrl[late] = np.broadcast_to(self._prev_targets[:, None, :], self._ctrl.shape)[late]
+        self.pusher.tick(self.policy_dt, self.rng)
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
         self._steps_since_reset += 1
@@ -209,8 +221,10 @@ class Tron1Env:
             episode[f"reward/{name}"] = sums
         if len(ids):
             commanded = np.linalg.norm(self.commands.value[ids, :2], axis=1) * episode["length_s"]
-            for i in self.curriculum.update(ids, np.linalg.norm(xy[ids], axis=1), commanded):
-                set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
+            changed = self.curriculum.update(ids, np.linalg.norm(xy[ids], axis=1), commanded)
+            if self.model.nhfield:  # a plane (flat terrain) has no tile to swap
+                for i in changed:
+                    set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
@@ -237,8 +251,15 @@ class Tron1Env:
     def camera_pose(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World position (k, 3) and rotation (k, 3, 3; MuJoCo camera axes) of the depth camera."""
         rot_b = quat_to_mat(self.physics.qpos[ids, 3:7])
-        pos = self.physics.qpos[ids, 0:3] + rot_b @ self._cam_pos_b
-        return pos, rot_b @ self._cam_rot_b
+        offset = self._cam_pos_b + self.randomizer.camera_offset[ids]
+        pos = self.physics.qpos[ids, 0:3] + np.einsum("nij,nj->ni", rot_b, offset)
+        # mount pitch error: a rotation about the camera's own x (right) axis
+        a = self.randomizer.camera_pitch[ids]
+        c, s_ = np.cos(a), np.sin(a)
+        rx = np.zeros((len(ids), 3, 3))
+        rx[:, 0, 0] = 1.0
+        rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = c, -s_, s_, c
+        return pos, rot_b @ self._cam_rot_b @ rx
 
     def _render_depth(self, ids: np.ndarray) -> None:
         """Render the depth camera of envs ``ids`` (the frame is then held until the next render).

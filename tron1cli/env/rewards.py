@@ -13,7 +13,7 @@ double critic. Ablations are data: presets that remove, swap or regroup entries
 With the gait prior on (the default of ``tron1 train``; see tron1cli/env/gait.py) two more
 locomotion terms follow a left/right contact schedule: ``gait_swing_force`` penalises ground
 force on a foot that should swing, ``gait_stance_speed`` the speed of a foot that should stand.
-With it off the reward is exactly the paper's.
+A survival bonus ``alive`` comes with them. With the prior off the reward is exactly the paper's.
 
 Every weight is multiplied by the policy period dt (0.02 s), for every term alike, as in the
 legged-robot literature the Table II weights come from; episode sums are therefore in
@@ -148,10 +148,13 @@ ABLATIONS: dict[str, Callable[[RewardConfig], RewardConfig]] = {
 }
 
 
-#: The gait prior's contact-schedule terms (locomotion group), weights per second.
+#: The gait prior's terms (locomotion group), weights per second: the contact schedule, and a
+#: survival bonus so that living is worth more than the early regularisation penalties cost
+#: (without it the first policies learn to fall fast; DESIGN.md's working recipe had one too).
 GAIT_TERMS: dict[str, TermCfg] = {
     "gait_swing_force": TermCfg(-1.0),
     "gait_stance_speed": TermCfg(-1.0),
+    "alive": TermCfg(2.0),
 }
 
 
@@ -210,6 +213,7 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     ),
     "gait_swing_force": _swing_force,
     "gait_stance_speed": _stance_speed,
+    "alive": lambda env: np.ones(env.n),
 }
 
 

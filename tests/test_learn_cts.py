@@ -1,0 +1,201 @@
+"""Vision-CTS: where each loss's gradient goes, the image path, the exported student."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
+
+torch.set_num_threads(1)
+
+P, H, E, HM, HW = 5, 3, 7, 441, (12, 16)
+N, T = 8, 4
+GROUPS = ("stable", "loco")
+
+
+def make(dims: ObsDims, seed: int = 0) -> VisionCTSLearner:
+    cfg = LearnerConfig(
+        num_steps_per_env=T,
+        num_epochs=2,
+        num_minibatches=2,
+        tbptt=2,
+        rec_batch_envs=3,
+        actor_hidden=(16,),
+        critic_hidden=(16,),
+        encoder_hidden=(16,),
+        heightmap_encoder_hidden=(16,),
+        decoder_hidden=(16,),
+        depth_feature=8,
+        gru_hidden=8,
+        latent_e=4,
+        latent_h=6,
+    )
+    return VisionCTSLearner(dims, N, GROUPS, cfg, seed=seed)
+
+
+def fake_obs(dims: ObsDims, rng: np.random.Generator, rows: int = N) -> dict[str, np.ndarray]:
+    hist = rng.normal(size=(rows, dims.history)).astype(np.float32)
+    obs = {
+        "proprio": hist[:, -dims.proprio :].copy(),
+        "history": hist,
+        "privileged": rng.normal(size=(rows, dims.privileged)).astype(np.float32),
+    }
+    if dims.heightmap:
+        obs["heightmap"] = (-0.6 + 0.05 * rng.normal(size=(rows, dims.heightmap))).astype(np.float32)
+    if dims.depth_hw:
+        obs["depth"] = rng.uniform(0.2, 3.5, size=(rows, *dims.depth_hw)).astype(np.float32)
+    return obs
+
+
+def fill(learner: VisionCTSLearner, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    dims = learner.dims
+    obs = fake_obs(dims, rng)
+    for t in range(T):
+        learner.act(obs)
+        obs = fake_obs(dims, rng)
+        done = np.zeros(N, bool)
+        done[[1, 6]] = t == 1  # a teacher and a student env end at step 1, the student by time-out
+        time_out = done & (np.arange(N) == 6)
+        rew = {g: rng.normal(size=N) for g in GROUPS}
+        learner.process_step(rew, done, time_out, fake_obs(dims, rng))
+    return obs
+
+
+def grads(module) -> list[bool]:
+    """Per parameter: has a non-zero gradient."""
+    return [p.grad is not None and bool(p.grad.abs().sum() > 0) for p in module.parameters()]
+
+
+@pytest.fixture(scope="module")
+def vision() -> tuple[VisionCTSLearner, dict[str, np.ndarray]]:
+    learner = make(ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW))
+    last = fill(learner, np.random.default_rng(0))
+    return learner, last
+
+
+def test_gradient_routes(vision):
+    learner, last = vision
+    m = learner.model
+    learner.storage.compute_returns(torch.zeros(N, 2), 0.99, 0.95, learner.weights)
+    teacher = [m.teacher_e, m.teacher_h]
+    student = [m.est_e, m.dec_e, m.est_h, m.dec_h]
+    heads = [m.actor, m.critics]
+
+    m.zero_grad(set_to_none=True)
+    loss, _ = learner.ppo_loss(torch.arange(T * N))
+    loss.backward()
+    assert not any(any(grads(s)) for s in student)  # stored student latents: fixed inputs
+    assert all(all(grads(t)) for t in teacher)  # through the teacher rows' recomputed latents
+    assert all(all(grads(h)) for h in heads) and m.log_std.grad is not None
+
+    m.zero_grad(set_to_none=True)
+    rec, parts = learner.reconstruction_loss(torch.arange(T * N))
+    rec.backward()
+    assert set(parts) == {"latent_e", "privileged"}  # the image path owns latent_h / heightmap
+    assert all(grads(m.est_e)) and all(grads(m.dec_e))
+    assert not any(any(grads(x)) for x in teacher + heads + [m.est_h, m.dec_h])
+    assert m.log_std.grad is None
+
+    m.zero_grad(set_to_none=True)
+    st = learner.storage
+    loss, parts, hidden = learner.image_reconstruction_loss(0, 2, st.hidden0.clone())
+    loss.backward()
+    assert set(parts) == {"latent_h", "heightmap", "heightmap_err_cm"}
+    assert all(grads(m.est_h.cnn)) and all(grads(m.est_h.gru)) and all(grads(m.dec_h))
+    assert not any(any(grads(x)) for x in teacher + heads + [m.est_e, m.dec_e])
+    assert hidden.shape == (3, 8)
+    m.zero_grad(set_to_none=True)
+
+
+def test_vision_update_and_shapes(vision):
+    learner, last = vision
+    assert learner.storage.rec_env_ids.min() >= learner.n_teacher  # image path: student envs only
+    before = [p.detach().clone() for p in learner.model.est_h.cnn.parameters()]
+    stats = learner.update(last)
+    assert all(np.isfinite(v) for v in stats.values())
+    for k in (
+        "rec_latent_e",
+        "rec_latent_h",
+        "rec_heightmap",
+        "rec_privileged",
+        "heightmap_err_cm",
+        "value_loss/stable",
+        "value_loss/loco",
+    ):
+        assert k in stats
+    assert 0.0 < stats["heightmap_err_cm"] < 100.0
+    after = list(learner.model.est_h.cnn.parameters())
+    assert any(not torch.equal(a, b) for a, b in zip(after, before, strict=True))
+    obs = fake_obs(learner.dims, np.random.default_rng(1))
+    a, hid, h_hat, e_hat = learner.student_step(obs)
+    assert a.shape == (N, 6) and hid.shape == (N, 8) and h_hat.shape == (N, HM) and e_hat.shape == (N, E)
+    assert np.isfinite(h_hat).all() and np.isfinite(e_hat).all()
+
+
+@pytest.mark.parametrize("variant", ["depth", "heightmap", "blind"])
+def test_export_matches_learner_student_action(variant):
+    dims = {
+        "depth": ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW),
+        "heightmap": ObsDims(P, H * P, E, heightmap=HM),
+        "blind": ObsDims(P, H * P, E),
+    }[variant]
+    learner = make(dims, seed=1)
+    rng = np.random.default_rng(2)
+    obs = fake_obs(dims, rng)
+    learner.act(obs)  # normalisers now hold these observations
+    st, nt = learner.storage, learner.n_teacher
+    pol = learner.policy_for_export()
+    hist = torch.from_numpy(obs["history"][nt:])
+    depth = torch.from_numpy(obs["depth"][nt:]) if dims.depth_hw else torch.zeros(N - nt, 1, 1)
+    mean, hidden, h_hat, e_hat = pol(hist, depth, torch.zeros(N - nt, 8))
+    torch.testing.assert_close(mean, st.mu[0, nt:], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(hidden, learner.hidden, rtol=1e-5, atol=1e-6)
+    assert h_hat.shape == (N - nt, HM if dims.heightmap else 0) and e_hat.shape == (N - nt, E)
+    a2, *_ = learner.student_step({k: v[nt:] for k, v in obs.items()})
+    np.testing.assert_allclose(a2, mean.numpy(), rtol=1e-5, atol=1e-6)
+    # the exported copy is frozen: training the learner further leaves it unchanged
+    with torch.no_grad():
+        learner.model.actor[0].weight.add_(1.0)
+    torch.testing.assert_close(pol(hist, depth, torch.zeros(N - nt, 8))[0], mean)
+
+
+def test_export_onnx_parity():
+    ort = pytest.importorskip("onnxruntime")
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    learner = make(dims)
+    learner.act(fake_obs(dims, np.random.default_rng(3)))
+    pol = learner.policy_for_export()
+    args = (torch.randn(2, H * P), torch.rand(2, *HW) * 3.0, torch.randn(2, 8))
+    names = ["history", "depth", "hidden"]
+    buf = io.BytesIO()
+    with warnings.catch_warnings():  # the TorchScript exporter (needs no onnxscript) is deprecated
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(
+            pol,
+            args,
+            buf,
+            input_names=names,
+            output_names=["action", "hidden_next", "h_hat", "e_hat"],
+            dynamo=False,
+        )
+    sess = ort.InferenceSession(buf.getvalue())
+    outs = sess.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
+    for o, r in zip(outs, pol(*args), strict=True):
+        np.testing.assert_allclose(o, r.numpy(), rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("ratio", [0.0, 1.0])
+def test_single_group_runs(ratio):
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    learner = make(dims)
+    cfg = dataclasses.replace(learner.cfg, teacher_ratio=ratio, rec_all_envs=False)
+    learner = VisionCTSLearner(dims, N, GROUPS, cfg, seed=0)
+    stats = learner.update(fill(learner, np.random.default_rng(4)))
+    assert all(np.isfinite(v) for v in stats.values())
+    assert ("heightmap_err_cm" in stats) == (ratio < 1.0)

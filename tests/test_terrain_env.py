@@ -1,0 +1,148 @@
+"""The env core on terrain, with sensors, Table III randomisation, pushes and the curriculum."""
+
+import numpy as np
+import pytest
+
+from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.env.core import Tron1Env
+from tron1cli.env.curriculum import TerrainCurriculum
+from tron1cli.env.randomization import PushConfig, RandomizationConfig, damping_ratio_for_restitution
+from tron1cli.env.terrain import TERRAIN_GROUPS, TerrainBank
+
+FULL = dict(perception=True, randomization=RandomizationConfig.table_iii(), pushes=PushConfig.moderate())
+
+
+def make(terrain="stairs", n=8, **kw):
+    cfg = (
+        dict(num_envs=n, nthread=1, terrain=terrain, gait=GaitConfig(enabled=False), depth_from=n // 2) | FULL
+    )
+    cfg.update(kw)
+    return Tron1Env(EnvConfig(**cfg))
+
+
+@pytest.mark.parametrize("terrain", sorted(TERRAIN_GROUPS))
+def test_every_terrain_steps_with_all_sensors_and_randomisation(terrain):
+    env = make(terrain, max_init_level=9)
+    obs = env.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        res = env.step(rng.normal(0, 0.3, (8, 6)))
+    for k, shape in {
+        "proprio": (8, 27),
+        "privileged": (8, 51),
+        "heightmap": (8, 441),
+        "depth": (8, 60, 80),
+    }.items():
+        assert res.obs[k].shape == shape, k
+        assert np.isfinite(res.obs[k]).all(), k
+    assert obs["depth"][4:].max() <= env.camera.far
+    env.close()
+
+
+def test_randomised_quantities_stay_in_range_and_differ_between_envs():
+    env = make("flat", n=32)
+    env.reset()
+    ms = env.physics.models
+    base = ms[0].body("base").id
+    mass = np.array([m.body_mass[base] for m in ms])
+    nominal = env.randomizer.nominal_mass
+    assert ((mass >= nominal - 1) & (mass <= nominal + 3)).all() and mass.std() > 0.3
+    shift = np.array([m.body_ipos[base] for m in ms]) - env.randomizer.nominal_ipos
+    assert (np.abs(shift) <= [0.03, 0.02, 0.03]).all() and shift.std(axis=0).min() > 0.005
+    fric = np.array([m.geom_friction[m.geom("ground").id, 0] for m in ms])
+    assert ((fric >= 0.4) & (fric <= 1.2)).all() and fric.std() > 0.1
+    zeta = np.array([m.geom_solref[m.geom("ground").id, 1] for m in ms])
+    lo, hi = damping_ratio_for_restitution(np.array([0.75, 0.25]))
+    assert ((zeta >= lo - 1e-9) & (zeta <= hi + 1e-9)).all() and zeta.std() > 0.02
+    kp = np.array([m.actuator_gainprm[0, 0] for m in ms])
+    assert ((kp >= 40 * 0.64 - 1e-9) & (kp <= 40 * 1.44 + 1e-9)).all() and kp.std() > 1
+    limit = np.array([m.actuator_forcerange[0, 1] for m in ms])
+    assert ((limit >= 64 - 1e-9) & (limit <= 96 + 1e-9)).all()
+    d = env.randomizer.delay_steps
+    assert ((d >= 0) & (d <= 4)).all() and len(set(d.tolist())) > 1
+    assert (np.abs(env.randomizer.camera_offset) <= 0.01).all()
+    assert (np.abs(np.degrees(env.randomizer.camera_pitch)) <= 1.0).all()
+    env.close()
+
+
+def test_restitution_to_damping_ratio():
+    # e = exp(-pi zeta / sqrt(1 - zeta^2)): zeta = 0.5 gives e = exp(-pi / sqrt(3)) = 0.1630
+    np.testing.assert_allclose(damping_ratio_for_restitution(np.array([np.exp(-np.pi / np.sqrt(3))])), [0.5])
+
+
+def test_delay_holds_the_old_target():
+    env = make("flat", n=4, randomization=RandomizationConfig(terms=("delay",), delay_s=(0.01, 0.01)))
+    env.reset()
+    env.step(np.zeros((4, 6)))
+    a = np.ones((4, 6))
+    env.step(a)
+    ctrl = env.physics.control[:, :, :6]
+    np.testing.assert_allclose(ctrl[:, :2], 0.0)  # 10 ms = 2 substeps of the old (default) target
+    np.testing.assert_allclose(ctrl[:, 2:], 0.25)
+    env.close()
+
+
+def test_push_applies_the_requested_wrench():
+    """A pure force on the base changes the whole robot's momentum by F dt (measured in the sim)."""
+    env = make("flat", n=2, randomization=RandomizationConfig(), pushes=PushConfig())
+    env.reset()
+    env.physics.state[:, 3] = 5.0  # lift both robots high into the air: no contact
+    force = np.array([[40.0, -30.0, 20.0, 0, 0, 0], [0.0, 0.0, 0.0, 0, 0, 0]])
+    env.physics.forward(np.arange(2), env.targets)
+    v0 = env.physics.sensordata[:, -1, env.physics.sensor_slices["com_vel"]].copy()
+    env.external_wrench[:] = force
+    env.physics.step(env._ctrl, env.external_wrench)
+    v1 = env.physics.sensordata[:, -1, env.physics.sensor_slices["com_vel"]]
+    dt = 3 * env.cfg.sim_dt  # the sensor row lags the state by one substep
+    mass = env.physics.models[0].body_subtreemass[1]
+    dv = v1 - v0 - np.array([0, 0, -9.81]) * dt
+    np.testing.assert_allclose(dv[0], force[0, :3] / mass * dt, atol=2e-3)
+    np.testing.assert_allclose(dv[1], 0.0, atol=2e-3)
+    env.close()
+
+
+def test_pushes_are_in_range_and_in_the_teacher_observation():
+    env = make(
+        "flat",
+        n=64,
+        randomization=RandomizationConfig(),
+        pushes=PushConfig(enabled=True, interval_s=(0.02, 0.1), duration_s=0.1),
+    )
+    env.reset()
+    res = env.step(np.zeros((64, 6)))
+    res = env.step(np.zeros((64, 6)))
+    w = env.external_wrench
+    assert (np.abs(w[:, :3]) <= 50).all() and (np.abs(w[:, 3:]) <= 5).all() and np.abs(w).max() > 10
+    sl = env.layout.slices("privileged")["external_force"]
+    np.testing.assert_allclose(res.obs["privileged"][~res.done, sl], w[~res.done, :3] / 50.0, rtol=1e-5)
+    env.close()
+
+
+def test_extreme_preset():
+    assert PushConfig.extreme().force_n == (400.0, 400.0, 400.0) and PushConfig.extreme().torque_nm[0] == 20.0
+
+
+def test_curriculum_moves_up_and_down():
+    bank = TerrainBank(("stairs_up",))
+    cur = TerrainCurriculum(bank, 3, np.random.default_rng(0), max_init_level=0)
+    cur.level[:] = 5
+    changed = cur.update(
+        np.arange(3), distance=np.array([4.0, 0.1, 1.0]), commanded=np.array([1.0, 5.0, 1.0])
+    )
+    assert cur.level.tolist() == [6, 4, 5] and sorted(changed.tolist()) == [0, 1]
+    moved = np.array([0, 1])
+    assert (bank.level[cur.tile[moved]] == cur.level[moved]).all()
+
+
+def test_same_seed_same_terrain_and_trajectory():
+    def run():
+        env = make("mixed", n=6, seed=5, max_init_level=5)
+        env.reset()
+        out = [env.step(np.full((6, 6), 0.2)).obs["privileged"].copy() for _ in range(15)]
+        tiles = env.curriculum.tile.copy()
+        env.close()
+        return np.stack(out), tiles
+
+    (a, ta), (b, tb) = run(), run()
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ta, tb)

@@ -1,0 +1,101 @@
+"""``tron1 train`` through the CLI: run directory, checkpoints, resume, determinism, bad input."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from tron1cli.errors import Tron1Error
+from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
+
+SMALL = ["--envs", "16", "--steps-per-env", "8", "--hidden", "32,32"]
+
+
+def tron1(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "tron1cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+    )
+
+
+def metrics(run_dir):
+    return [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_two_iterations_write_a_loadable_checkpoint_and_resume(tmp_path):
+    run = tmp_path / "run"
+    r = tron1("train", *SMALL, "--iterations", "2", "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    ck = load_checkpoint(run / "checkpoints" / "latest.pt")
+    assert ck["iteration"] == 2 and ck["env_steps"] == 2 * 16 * 8
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["env"]["num_envs"] == 16 and cfg["gait_prior"] is True
+    assert cfg["reward"]["groups"] == ["stable", "loco"]
+    m = metrics(run)
+    assert [x["iteration"] for x in m] == [1, 2]
+    for key in ("steps_per_s", "step_reward/stable", "learn/lr", "student/vel_tracking_error"):
+        assert key in m[0]
+    # resume continues the iteration count to the new total
+    r = tron1("train", "--resume", "--iterations", "3", "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    assert [x["iteration"] for x in metrics(run)] == [1, 2, 3]
+    assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == 3
+
+
+def test_same_seed_same_first_iterations(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d in (a, b):
+        assert tron1("train", *SMALL, "--iterations", "2", "--seed", "7", "--run-dir", str(d)).returncode == 0
+    keys = ("step_reward/stable", "step_reward/loco", "learn/surrogate_loss", "learn/kl")
+    for x, y in zip(metrics(a), metrics(b), strict=True):
+        assert [x[k] for k in keys] == [y[k] for k in keys]
+
+
+@pytest.mark.parametrize(
+    "args,code,text",
+    [
+        (["--terrain", "lava"], 2, "unknown terrain 'lava'"),
+        (["--ablation", "nope"], 2, "unknown ablation 'nope'"),
+        (["--envs", "0"], 2, "--envs"),
+        (["--iterations", "-1"], 2, "--iterations"),
+        (["--hidden", "a,b"], 2, "--hidden"),
+    ],
+)
+def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):
+    r = tron1("train", *args, "--run-dir", str(tmp_path / "x"))
+    assert r.returncode == code
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1 and text in lines[0], r.stderr
+
+
+def test_resume_without_a_run_is_a_clear_error(tmp_path):
+    r = tron1("train", "--resume", "--run-dir", str(tmp_path / "none"))
+    assert r.returncode == 1
+    assert "nothing to resume" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_corrupt_checkpoint_is_refused(tmp_path):
+    p = tmp_path / "c.pt"
+    save_checkpoint(p, {"x": torch.zeros(3)})
+    assert load_checkpoint(p)["x"].shape == (3,)
+    p.write_bytes(p.read_bytes()[:50])
+    with pytest.raises(Tron1Error, match="cannot read checkpoint"):
+        load_checkpoint(p)
+    q = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.ones(1)}, q)
+    with pytest.raises(Tron1Error, match="not a tron1cli checkpoint"):
+        load_checkpoint(q)
+
+
+def test_checkpoint_refuses_pickled_objects(tmp_path):
+    from fractions import Fraction  # any importable class: weights_only must refuse to build it
+
+    p = tmp_path / "evil.pt"
+    torch.save({"format": "tron1cli-checkpoint", "version": 1, "obj": Fraction(1, 3)}, p)
+    with pytest.raises(Tron1Error, match="cannot read checkpoint"):
+        load_checkpoint(p)

@@ -1,0 +1,163 @@
+"""``tron1 train``: Vision-CTS PPO with the LIPM-guided reward on the chosen terrain."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from tron1cli.cli.common import err, fail, out
+
+
+def _fmt(v) -> str:
+    return "-" if v is None or v != v else f"{v:.2f}"
+
+
+def train(
+    terrain: str = typer.Option(
+        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
+    ),
+    envs: int = typer.Option(1024, "--envs", "-n", min=2, help="Parallel environments (teacher + student)."),
+    iterations: int = typer.Option(
+        None,
+        "--iterations",
+        "-i",
+        min=1,
+        help="PPO iterations in total [default: 300; on --resume: the run's own].",
+    ),
+    seed: int = typer.Option(0, "--seed", help="Seed of every random stream."),
+    ablation: str = typer.Option(
+        "none", "--ablation", "-a", help="none, no-stable-reward, single-critic, no-rfm, l2-velocity."
+    ),
+    run_dir: Path = typer.Option(Path("runs/latest"), "--run-dir", "-o", help="Run directory."),
+    resume: bool = typer.Option(
+        False, "--resume", help="Continue the run in --run-dir from its last checkpoint."
+    ),
+    teacher_ratio: float = typer.Option(
+        0.5, "--teacher-ratio", min=0.0, max=1.0, help="Share of teacher envs."
+    ),
+    gait_prior: bool = typer.Option(
+        True,
+        "--gait-prior/--no-gait-prior",
+        help="Gait clock + contact-schedule reward (off: the paper exactly).",
+    ),
+    steps_per_env: int = typer.Option(24, "--steps-per-env", min=1, help="Rollout length per iteration."),
+    hidden: str = typer.Option(
+        "256,128,64", "--hidden", help="Actor and critic MLP sizes (paper: 512,256,128)."
+    ),
+    save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
+    minutes: float = typer.Option(None, "--minutes", min=0.0, help="Stop after this much wall-clock time."),
+    threads: int = typer.Option(2, "--threads", min=1, help="Physics and torch threads."),
+) -> None:
+    """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
+    from tron1cli.config import EnvConfig, GaitConfig
+    from tron1cli.env.rewards import ABLATIONS
+    from tron1cli.learn import tune_glibc_malloc
+    from tron1cli.learn.config import LearnerConfig
+    from tron1cli.train.runner import RunConfig, Trainer, check_run_dir
+
+    if ablation not in ABLATIONS:
+        fail(f"unknown ablation '{ablation}'; choose from {', '.join(ABLATIONS)}", 2)
+    if terrain != "flat":
+        from tron1cli.env.terrain import resolve_terrain
+
+        try:
+            resolve_terrain(terrain)
+        except ValueError as e:
+            fail(str(e), 2)
+    try:
+        sizes = tuple(int(x) for x in hidden.split(","))
+        if not sizes or min(sizes) < 1:
+            raise ValueError
+    except ValueError:
+        fail(f"--hidden wants positive integers separated by commas, got '{hidden}'", 2)
+    check_run_dir(run_dir, resume)
+    tune_glibc_malloc()
+    cfg = None
+    if not resume:
+        try:
+            env_cfg = EnvConfig(
+                num_envs=envs,
+                seed=seed,
+                terrain=terrain,
+                nthread=threads,
+                gait=GaitConfig(enabled=gait_prior),
+            )
+            learner_cfg = replace(
+                LearnerConfig(),
+                teacher_ratio=teacher_ratio,
+                num_steps_per_env=steps_per_env,
+                actor_hidden=sizes,
+                critic_hidden=sizes,
+            )
+            cfg = RunConfig(
+                env=env_cfg,
+                learner=learner_cfg,
+                ablation=ablation,
+                gait_prior=gait_prior,
+                iterations=iterations or 300,
+                save_every=save_every,
+            )
+        except ValueError as e:
+            fail(str(e), 2)
+    trainer = Trainer(run_dir, cfg, resume=resume, iterations=iterations)
+    c = trainer.cfg
+    if trainer.iteration >= c.iterations:
+        trainer.close()
+        out.print(
+            f"{run_dir} is complete at iteration {trainer.iteration}: pass --iterations N to train further"
+        )
+        return
+    err.print(
+        f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher), "
+        f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, seed {c.env.seed} -> {run_dir}"
+        + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+    )
+    progress = Progress(
+        TextColumn("[bold]iter"),
+        MofNCompleteColumn(),
+        BarColumn(bar_width=20),
+        TextColumn("{task.fields[figures]}"),
+        TimeElapsedColumn(),
+        console=err,
+    )
+    task = progress.add_task("train", total=c.iterations, completed=trainer.iteration, figures="")
+
+    def show(m: dict) -> None:
+        reward = sum(v for k, v in m.items() if k.startswith("step_reward/"))
+        figs = (
+            f"{m['steps_per_s']:,.0f} steps/s | reward {_fmt(reward)}"
+            f" | ep {_fmt(m.get('student/episode_length_s'))} s"
+            f" | survival T {_fmt(m.get('teacher/survival'))}"
+            f" S {_fmt(m.get('student/survival'))} | vel err S {_fmt(m.get('student/vel_tracking_error'))}"
+        )
+        if "terrain/mean_level" in m:
+            figs += f" | level {_fmt(m['terrain/mean_level'])}"
+        progress.update(task, completed=m["iteration"], figures=figs)
+
+    try:
+        with progress:
+            last = trainer.run(show, max_minutes=minutes)
+    except KeyboardInterrupt:
+        path = trainer.save()
+        trainer.close()
+        fail(f"interrupted at iteration {trainer.iteration}: checkpoint saved to {path}", 130)
+    trainer.close()
+    t = Table(
+        title=f"tron1 train: {trainer.iteration} iterations, {trainer.env_steps:,} env steps, "
+        f"{trainer.wall_s / 60:.1f} min"
+    )
+    t.add_column("figure")
+    t.add_column("teacher", justify="right")
+    t.add_column("student", justify="right")
+    for key, label in (
+        ("survival", "survival (share of episodes)"),
+        ("episode_length_s", "episode length (s)"),
+        ("vel_tracking_error", "velocity tracking error (m/s)"),
+    ):
+        t.add_row(label, _fmt(last.get(f"teacher/{key}")), _fmt(last.get(f"student/{key}")))
+    out.print(t)
+    out.print(f"checkpoint: {run_dir / 'checkpoints' / 'latest.pt'}")

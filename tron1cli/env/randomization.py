@@ -1,0 +1,213 @@
+"""Domain randomisation (paper Table III) and pushes: per-env, seeded, each term switchable.
+
+Every env owns its MjModel, so physical parameters are written into that env's model at reset
+and hold for the episode:
+
+=================  =====================================  ==========================================
+term               range                                  where it acts
+=================  =====================================  ==========================================
+payload            -1 .. 3 kg                             base body mass
+com_shift          +/-3, +/-2, +/-3 cm (x, y, z)          base body CoM
+friction           0.4 .. 1.2                             sliding friction of ground and feet
+restitution        0.25 .. 0.75                           contact damping ratio of ground and feet
+kp, kd             x 0.8 .. 1.2                           position actuators' stiffness and damping
+motor_strength     x 0.8 .. 1.2                           actuator gains and torque limit together
+delay              0 .. 20 ms                             the new joint target reaches the motors
+                                                          only after this, the old one holds before
+camera             +/-10 mm position, +/-1 deg pitch      the depth camera's mount (per env)
+=================  =====================================  ==========================================
+
+MuJoCo has no restitution coefficient: a contact is a damped spring, whose coefficient of
+restitution for a damping ratio zeta is e = exp(-pi zeta / sqrt(1 - zeta^2)); the sampled e is
+turned into zeta and written as the contact's damping ratio (time constant 0.02 s). The camera's
+field of view is not randomised per env (the renderer shares one set of intrinsics).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from tron1cli.env import robot
+
+ALL_TERMS = (
+    "payload",
+    "com_shift",
+    "friction",
+    "restitution",
+    "kp",
+    "kd",
+    "motor_strength",
+    "delay",
+    "camera",
+)
+
+
+@dataclass(frozen=True)
+class RandomizationConfig:
+    """Which Table III terms are on (``terms``) and their ranges (units in the names)."""
+
+    terms: tuple[str, ...] = ()
+    payload_kg: tuple[float, float] = (-1.0, 3.0)
+    com_shift_m: tuple[float, float, float] = (0.03, 0.02, 0.03)
+    friction: tuple[float, float] = (0.4, 1.2)
+    restitution: tuple[float, float] = (0.25, 0.75)
+    kp_scale: tuple[float, float] = (0.8, 1.2)
+    kd_scale: tuple[float, float] = (0.8, 1.2)
+    motor_strength: tuple[float, float] = (0.8, 1.2)
+    delay_s: tuple[float, float] = (0.0, 0.02)
+    camera_pos_m: float = 0.01
+    camera_pitch_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        unknown = set(self.terms) - set(ALL_TERMS)
+        if unknown:
+            raise ValueError(
+                f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}"
+            )
+
+    @classmethod
+    def table_iii(cls) -> RandomizationConfig:
+        """Every term of the paper's Table III."""
+        return cls(terms=ALL_TERMS)
+
+    def on(self, term: str) -> bool:
+        return term in self.terms
+
+
+def damping_ratio_for_restitution(e: np.ndarray) -> np.ndarray:
+    """Damping ratio zeta of a damped spring whose coefficient of restitution is ``e`` in (0, 1)."""
+    L = np.log(e)
+    return -L / np.sqrt(np.pi**2 + L**2)
+
+
+class Randomizer:
+    """Samples and applies the configured terms to the envs' own models.
+
+    Attributes (N rows): ``delay_steps`` physics substeps before a new target acts,
+    ``camera_offset`` (N, 3) m in the base frame, ``camera_pitch`` (N,) rad added to the mount.
+    """
+
+    def __init__(
+        self, cfg: RandomizationConfig, models: list[mujoco.MjModel], sim_dt: float, nsub: int
+    ) -> None:
+        self.cfg = cfg
+        self.models = models
+        self.sim_dt = sim_dt
+        self.nsub = nsub
+        n = len(models)
+        m0 = models[0]
+        self.base = m0.body("base").id
+        self.nominal_mass = float(m0.body_mass[self.base])
+        self.nominal_ipos = m0.body_ipos[self.base].copy()
+        self.contact_geoms = [m0.geom(g).id for g in ("foot_L_geom", "foot_R_geom")]
+        self.ground = m0.geom("ground").id
+        self.delay_steps = np.zeros(n, dtype=np.int64)
+        self.camera_offset = np.zeros((n, 3))
+        self.camera_pitch = np.zeros(n)
+        self.values: dict[str, np.ndarray] = {}
+
+    def apply(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+        """Draw new parameters for envs ``ids`` and write them into their models."""
+        c, k = self.cfg, len(ids)
+        if k == 0 or not c.terms:
+            return
+        u = lambda lo_hi, size=k: rng.uniform(lo_hi[0], lo_hi[1], size)  # noqa: E731
+        ones = np.ones(k)
+        payload = u(c.payload_kg) if c.on("payload") else np.zeros(k)
+        shift = (
+            rng.uniform(-1.0, 1.0, (k, 3)) * np.array(c.com_shift_m)
+            if c.on("com_shift")
+            else np.zeros((k, 3))
+        )
+        friction = u(c.friction) if c.on("friction") else None
+        zeta = damping_ratio_for_restitution(u(c.restitution)) if c.on("restitution") else None
+        kp = u(c.kp_scale) if c.on("kp") else ones
+        kd = u(c.kd_scale) if c.on("kd") else ones
+        strength = u(c.motor_strength) if c.on("motor_strength") else ones
+        if c.on("delay"):
+            self.delay_steps[ids] = np.minimum(np.round(u(c.delay_s) / self.sim_dt).astype(int), self.nsub)
+        if c.on("camera"):
+            self.camera_offset[ids] = rng.uniform(-c.camera_pos_m, c.camera_pos_m, (k, 3))
+            self.camera_pitch[ids] = np.radians(rng.uniform(-c.camera_pitch_deg, c.camera_pitch_deg, k))
+        for j, i in enumerate(ids):
+            m = self.models[i]
+            m.body_mass[self.base] = self.nominal_mass + payload[j]
+            m.body_ipos[self.base] = self.nominal_ipos + shift[j]
+            if friction is not None:
+                m.geom_friction[[self.ground, *self.contact_geoms], 0] = friction[j]
+            if zeta is not None:
+                m.geom_solref[[self.ground, *self.contact_geoms]] = (0.02, zeta[j])
+            g = strength[j]
+            m.actuator_gainprm[:, 0] = robot.KP * kp[j] * g
+            m.actuator_biasprm[:, 1] = -robot.KP * kp[j] * g
+            m.actuator_biasprm[:, 2] = -robot.KD * kd[j] * g
+            m.actuator_forcerange[:] = np.array([-1.0, 1.0]) * robot.TORQUE_LIMIT * g
+        self.values = {
+            "payload": payload,
+            "friction": friction if friction is not None else np.full(k, np.nan),
+            "kp": kp,
+            "kd": kd,
+            "motor_strength": strength,
+        }
+
+
+@dataclass(frozen=True)
+class PushConfig:
+    """External wrench pushes on the base, world frame.
+
+    force_n, torque_nm: symmetric range per axis (x, y, z); duration_s: how long a push lasts;
+    interval_s: range of the time between pushes.
+    """
+
+    enabled: bool = False
+    force_n: tuple[float, float, float] = (50.0, 50.0, 50.0)
+    torque_nm: tuple[float, float, float] = (5.0, 5.0, 5.0)
+    duration_s: float = 0.2
+    interval_s: tuple[float, float] = (3.0, 6.0)
+
+    @classmethod
+    def moderate(cls) -> PushConfig:
+        """The paper's moderate disturbances: +/-50 N and +/-5 N m along x, y, z."""
+        return cls(enabled=True)
+
+    @classmethod
+    def extreme(cls) -> PushConfig:
+        """The paper's extreme disturbances: +/-400 N and +/-20 N m."""
+        return cls(enabled=True, force_n=(400.0, 400.0, 400.0), torque_nm=(20.0, 20.0, 20.0))
+
+
+class Pusher:
+    """Per-env push timers; writes the active wrench (N, 6) into ``wrench`` each step."""
+
+    def __init__(self, cfg: PushConfig, num_envs: int, wrench: np.ndarray) -> None:
+        self.cfg = cfg
+        self.wrench = wrench
+        self.next_push = np.full(num_envs, np.inf)
+        self.push_left = np.zeros(num_envs)
+
+    def reset(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+        self.push_left[ids] = 0.0
+        self.wrench[ids] = 0.0
+        if self.cfg.enabled:
+            self.next_push[ids] = rng.uniform(*self.cfg.interval_s, len(ids))
+
+    def tick(self, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """Advance by ``dt`` (s): start due pushes, end finished ones; returns envs pushed now."""
+        if not self.cfg.enabled:
+            return np.empty(0, dtype=np.int64)
+        c = self.cfg
+        self.push_left -= dt
+        ended = self.push_left <= 0.0
+        self.wrench[ended] = 0.0
+        self.next_push -= dt
+        due = np.flatnonzero(self.next_push <= 0.0)
+        if len(due):
+            k = len(due)
+            self.wrench[due, :3] = rng.uniform(-1.0, 1.0, (k, 3)) * np.array(c.force_n)
+            self.wrench[due, 3:] = rng.uniform(-1.0, 1.0, (k, 3)) * np.array(c.torque_nm)
+            self.push_left[due] = c.duration_s
+            self.next_push[due] = rng.uniform(*c.interval_s, k)
+        return due

@@ -1,0 +1,1 @@
+"""Training runs: the loop that joins the env core and the learner, checkpoints, metrics."""

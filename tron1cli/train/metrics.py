@@ -1,0 +1,61 @@
+"""Per-iteration training figures: episode outcomes by agent group, tracking error, reward terms."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+GROUPS = ("teacher", "student")
+
+
+class EpisodeStats:
+    """Rolling figures over the last ``window`` finished episodes of each agent group.
+
+    survival: share of finished episodes that ended by time-out rather than by a fall or an
+    unstable simulation; length_s: mean episode length (s). Reward-term sums are averaged over the
+    episodes that finished during the current iteration.
+    """
+
+    def __init__(self, window: int = 1000) -> None:
+        self.outcomes = {g: deque(maxlen=window) for g in GROUPS}
+        self.lengths = {g: deque(maxlen=window) for g in GROUPS}
+        self._terms: dict[str, list[np.ndarray]] = {}
+        self._track: dict[str, list[float]] = {g: [] for g in GROUPS}
+        self.episodes = 0
+
+    def add_episodes(self, ids: np.ndarray, episode: dict[str, np.ndarray], n_teacher: int) -> None:
+        """Record the episodes that ended in envs ``ids`` (the step's ``episode`` dict)."""
+        if len(ids) == 0:
+            return
+        self.episodes += len(ids)
+        is_student = ids >= n_teacher
+        for g, mask in (("teacher", ~is_student), ("student", is_student)):
+            self.outcomes[g].extend(episode["time_out"][mask].tolist())
+            self.lengths[g].extend(episode["length_s"][mask].tolist())
+        for k, v in episode.items():
+            if k.startswith("reward/"):
+                self._terms.setdefault(k, []).append(v)
+
+    def add_tracking(self, err: np.ndarray, n_teacher: int) -> None:
+        """Record one step's velocity tracking error (N,) in m/s."""
+        self._track["teacher"].append(float(err[:n_teacher].mean()) if n_teacher else np.nan)
+        self._track["student"].append(float(err[n_teacher:].mean()) if n_teacher < len(err) else np.nan)
+
+    def summary(self) -> dict[str, float]:
+        """Figures of this iteration; clears the per-iteration accumulators."""
+        out: dict[str, float] = {}
+        for g in GROUPS:
+            o = self.outcomes[g]
+            out[f"{g}/survival"] = float(np.mean(o)) if o else float("nan")
+            out[f"{g}/episode_length_s"] = (
+                float(np.mean(self.lengths[g])) if self.lengths[g] else float("nan")
+            )
+            out[f"{g}/vel_tracking_error"] = (
+                float(np.mean(self._track[g])) if self._track[g] else float("nan")
+            )
+            self._track[g] = []
+        for k, chunks in self._terms.items():  # "reward/<term>" -> "episode_reward/<term>"
+            out["episode_" + k] = float(np.concatenate(chunks).mean())
+        self._terms = {}
+        return out

@@ -1,0 +1,221 @@
+"""The training loop: env core <-> Vision-CTS learner, with checkpoints, metrics and resume.
+
+A run directory holds:
+
+- ``config.json``: the resolved run configuration (env, reward, learner, seed, ...);
+- ``checkpoints/ckpt_<iteration>.pt`` and ``checkpoints/latest.pt``: versioned plain dicts of
+  tensors plus the config, written atomically;
+- ``metrics.jsonl``: one JSON object per iteration (throughput, per-group rewards, per-term
+  episode sums, survival, episode length, tracking error, losses, learning rate, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tron1cli import __version__
+from tron1cli.config import EnvConfig
+from tron1cli.config.serde import from_plain, to_plain
+from tron1cli.env.core import Tron1Env
+from tron1cli.env.rewards import RewardConfig, make_reward_config
+from tron1cli.errors import Tron1Error, UsageError
+from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
+from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
+from tron1cli.train.metrics import EpisodeStats
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that defines a training run; saved as ``config.json`` and in every checkpoint.
+
+    iterations: PPO iterations in total (a resumed run continues to this count); save_every:
+    checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule.
+    """
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    ablation: str = "none"
+    gait_prior: bool = True
+    iterations: int = 1000
+    save_every: int = 50
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"iterations must be positive, got {self.iterations}")
+        if self.save_every < 1:
+            raise ValueError(f"save_every must be positive, got {self.save_every}")
+        if self.gait_prior != self.env.gait.enabled:
+            raise ValueError("gait_prior and env.gait.enabled disagree")
+
+    @property
+    def reward(self) -> RewardConfig:
+        return make_reward_config(self.ablation, gait_prior=self.gait_prior)
+
+    def to_dict(self) -> dict:
+        d = to_plain(self)
+        d["reward"] = self.reward.to_dict()  # resolved, for the record; rebuilt from ablation on load
+        d["tron1cli_version"] = __version__
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RunConfig:
+        d = {k: v for k, v in d.items() if k not in ("reward", "tron1cli_version")}
+        return from_plain(cls, d)
+
+
+def obs_dims(env: Tron1Env) -> ObsDims:
+    sizes = env.layout.sizes()
+    return ObsDims(
+        proprio=sizes["proprio"],
+        history=sizes["history"],
+        privileged=sizes["privileged"],
+        heightmap=sizes.get("heightmap", 0),
+        depth_hw=env.layout.depth_hw,
+    )
+
+
+def tracking_error(env: Tron1Env) -> np.ndarray:
+    """Planar velocity tracking error (N,) in m/s, base frame: |v_cmd,xy - v_xy|."""
+    return np.linalg.norm(env.commands.value[:, :2] - env.state.base_lin_vel_b[:, :2], axis=1)
+
+
+class Trainer:
+    """One training run in ``run_dir``.
+
+    A new run takes ``cfg``; ``resume`` continues the run saved in ``checkpoints/latest.pt`` with
+    its saved configuration, up to ``iterations`` in total when given (else the saved total).
+    """
+
+    def __init__(
+        self, run_dir: Path, cfg: RunConfig | None = None, resume: bool = False, iterations: int | None = None
+    ) -> None:
+        self.run_dir = Path(run_dir)
+        self.ckpt_dir = self.run_dir / "checkpoints"
+        self.metrics_path = self.run_dir / "metrics.jsonl"
+        state = None
+        if resume:
+            state = load_checkpoint(self.ckpt_dir / "latest.pt")
+            cfg = RunConfig.from_dict(json.loads(state["config"]))
+            if iterations is not None:
+                cfg = replace(cfg, iterations=iterations)
+        elif cfg is None:
+            raise UsageError("a new run needs a configuration")
+        elif (self.ckpt_dir / "latest.pt").exists():
+            raise UsageError(f"{self.run_dir} already holds a run: pass --resume to continue it")
+        self.cfg = cfg
+        torch.manual_seed(cfg.env.seed)
+        torch.set_num_threads(cfg.env.nthread)
+        self.env = Tron1Env(cfg.env, cfg.reward)
+        self.n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
+        self.learner = VisionCTSLearner(
+            obs_dims(self.env), cfg.env.num_envs, cfg.reward.groups, cfg.learner, seed=cfg.env.seed
+        )
+        self.iteration = 0
+        self.env_steps = 0
+        self.wall_s = 0.0
+        if state is not None:
+            self.learner.load_state_dict(state["learner"])
+            self.iteration = int(state["iteration"])
+            self.env_steps = int(state["env_steps"])
+            self.wall_s = float(state.get("wall_s", 0.0))
+        self.stats = EpisodeStats()
+
+    # -- persistence ------------------------------------------------------------------------
+    def save(self) -> Path:
+        payload = {
+            "config": json.dumps(self.cfg.to_dict()),
+            "learner": self.learner.state_dict(),
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "wall_s": self.wall_s,
+            "obs_layout": json.dumps(self.env.layout.to_dict()),
+        }
+        latest = self.ckpt_dir / "latest.pt"
+        save_checkpoint(latest, payload)
+        if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
+            save_checkpoint(self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt", payload)
+        return latest
+
+    def _write_config(self) -> None:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        tmp = self.run_dir / ".config.json.tmp"
+        tmp.write_text(json.dumps(self.cfg.to_dict(), indent=2))
+        os.replace(tmp, self.run_dir / "config.json")
+
+    # -- the loop ---------------------------------------------------------------------------
+    def run(
+        self, on_iteration: Callable[[dict], None] | None = None, max_minutes: float | None = None
+    ) -> dict:
+        """Train until ``cfg.iterations`` (or ``max_minutes`` of wall clock); returns the last metrics."""
+        self._write_config()
+        start = time.perf_counter()
+        env, learner, n_t = self.env, self.learner, self.n_teacher
+        obs = env.reset(stagger=True)
+        T = self.cfg.learner.num_steps_per_env
+        last: dict = {}
+        with open(self.metrics_path, "a") as mlog:
+            while self.iteration < self.cfg.iterations:
+                t0 = time.perf_counter()
+                group_reward = {g: 0.0 for g in env.reward_cfg.groups}
+                for _ in range(T):
+                    actions = learner.act(obs)
+                    res = env.step(actions)
+                    learner.process_step(res.rewards, res.done, res.time_out, res.terminal_obs)
+                    for g, r in res.rewards.items():
+                        group_reward[g] += float(r.mean())
+                    self.stats.add_episodes(np.flatnonzero(res.done), res.episode, n_t)
+                    self.stats.add_tracking(tracking_error(env), n_t)
+                    obs = res.obs
+                t1 = time.perf_counter()
+                learn_stats = learner.update(obs)
+                t2 = time.perf_counter()
+                self.iteration += 1
+                steps = T * env.n
+                self.env_steps += steps
+                self.wall_s += t2 - t0
+                m = {
+                    "iteration": self.iteration,
+                    "env_steps": self.env_steps,
+                    "wall_s": round(self.wall_s, 3),
+                    "steps_per_s": steps / (t2 - t0),
+                    "collect_s": t1 - t0,
+                    "learn_s": t2 - t1,
+                    "unstable_resets": env.unstable_count,
+                }
+                m.update({f"step_reward/{g}": v / T for g, v in group_reward.items()})
+                m.update(self.stats.summary())
+                m.update({f"learn/{k}": v for k, v in learn_stats.items()})
+                mlog.write(
+                    json.dumps(
+                        {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in m.items()}
+                    )
+                    + "\n"
+                )
+                mlog.flush()
+                if self.iteration % self.cfg.save_every == 0:
+                    self.save()
+                last = m
+                if on_iteration is not None:
+                    on_iteration(m)
+                if max_minutes is not None and time.perf_counter() - start >= 60.0 * max_minutes:
+                    break
+        self.save()
+        return last
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def check_run_dir(run_dir: Path, resume: bool) -> None:
+    """Clear errors for a resume without a run, before anything is built."""
+    if resume and not (Path(run_dir) / "checkpoints" / "latest.pt").exists():
+        raise Tron1Error(f"nothing to resume in {run_dir}: no checkpoints/latest.pt")

@@ -1,0 +1,1 @@
+"""Plots and rerun streams for people to look at."""
