@@ -1,0 +1,1 @@
+"""Student policies as they deploy: the contract, loading (torch or ONNX), export."""

@@ -1,0 +1,116 @@
+"""The deployment contract of a student policy: everything a runtime needs besides the weights.
+
+One dict, built from a run's configuration and observation layout. It is stored in the metadata
+of every exported ONNX file (each top-level key as one JSON-encoded metadata entry) and checked
+against the env a policy is asked to drive, so a policy never silently meets observations laid
+out differently from those it was trained on.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+
+from tron1cli.env import robot, sensors
+from tron1cli.env.observations import ObsLayout
+from tron1cli.errors import Tron1Error
+
+FORMAT = "tron1cli-policy"
+VERSION = 1
+
+#: ONNX graph inputs and outputs, in order (StudentPolicy.forward's signature).
+INPUTS = ("history", "depth", "hidden")
+OUTPUTS = ("action", "hidden_next", "h_hat", "e_hat")
+
+
+def layout_of(run_cfg) -> ObsLayout:
+    """The observation layout a run's env has (same rule as Tron1Env)."""
+    env = run_cfg.env
+    return ObsLayout(
+        history_len=env.history_len,
+        gait_clock=env.gait.enabled,
+        heightmap_dim=sensors.HeightScan().num_points if env.perception else 0,
+        depth_hw=(sensors.DepthCamera().height, sensors.DepthCamera().width) if env.perception else None,
+    )
+
+
+def build_contract(run_cfg, gru_hidden: int, source: str) -> dict:
+    """The contract of the student policy of ``run_cfg`` (a RunConfig), exported from ``source``."""
+    env = run_cfg.env
+    layout = layout_of(run_cfg)
+    cam = sensors.DepthCamera()
+    fx, fy, cx, cy = cam.intrinsics()
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "source_checkpoint": source,
+        "joint_names": list(robot.JOINT_NAMES),
+        "default_pose_rad": [float(x) for x in robot.DEFAULT_POSE],
+        "action_scale_rad": robot.ACTION_SCALE,
+        "kp_nm_per_rad": robot.KP,
+        "kd_nm_s_per_rad": robot.KD,
+        "torque_limit_nm": robot.TORQUE_LIMIT,
+        "sim_dt_s": env.sim_dt,
+        "decimation": env.decimation,
+        "policy_hz": 1.0 / env.policy_dt,
+        "depth_hz": env.depth_hz,
+        "history_len": env.history_len,
+        "gru_hidden": gru_hidden,
+        "obs_layout": layout.to_dict(),
+        "gait_clock": {
+            "enabled": env.gait.enabled,
+            "inputs": ["sin(2 pi phase)", "cos(2 pi phase)", "frequency_hz"] if env.gait.enabled else [],
+            "freq_hz": list(env.gait.freq_hz),
+            "offset": env.gait.offset,
+            "stance": env.gait.stance,
+        },
+        "depth": None
+        if layout.depth_hw is None
+        else {
+            "rows": cam.height,
+            "cols": cam.width,
+            "range_m": [cam.near, cam.far],
+            "fov_deg": [cam.fovx_deg, cam.fovy_deg],
+            "intrinsics_px": {"fx": fx, "fy": fy, "cx": cx, "cy": cy},
+            "camera_pos_base_m": [float(x) for x in robot.CAMERA_POS],
+            "camera_pitch_down_deg": robot.CAMERA_PITCH_DEG,
+        },
+        "inputs": list(INPUTS),
+        "outputs": list(OUTPUTS),
+        "run_config": run_cfg.to_dict(),
+    }
+
+
+def to_metadata(contract: Mapping) -> dict[str, str]:
+    """ONNX metadata_props: one JSON string per top-level key."""
+    return {k: json.dumps(v) for k, v in contract.items()}
+
+
+def from_metadata(props: Mapping[str, str], where: str) -> dict:
+    """Inverse of :func:`to_metadata`; raises :class:`Tron1Error` when it is not our contract."""
+    try:
+        contract = {k: json.loads(v) for k, v in props.items()}
+    except json.JSONDecodeError as e:
+        raise Tron1Error(f"{where}: unreadable policy metadata ({e})") from e
+    if contract.get("format") != FORMAT:
+        raise Tron1Error(f"{where} is not a tron1 policy (no '{FORMAT}' contract in its metadata)")
+    if contract.get("version") != VERSION:
+        raise Tron1Error(f"{where}: policy contract version {contract.get('version')}, this tron1 reads {VERSION}")
+    missing = [k for k in ("obs_layout", "run_config", "joint_names", "gru_hidden") if k not in contract]
+    if missing:
+        raise Tron1Error(f"{where}: policy contract lacks {', '.join(missing)}")
+    return contract
+
+
+def check_matches_env(contract: Mapping, layout: ObsLayout, where: str) -> None:
+    """Refuse an env whose observation layout differs from the policy's, with one clear line."""
+    if list(contract["joint_names"]) != list(robot.JOINT_NAMES):
+        raise Tron1Error(f"{where}: joint order {contract['joint_names']} differs from {list(robot.JOINT_NAMES)}")
+    want, have = contract["obs_layout"], layout.to_dict()
+    if want == have:
+        return
+    if want.get("gait_clock") != have.get("gait_clock"):
+        on = "with" if want.get("gait_clock") else "without"
+        raise Tron1Error(f"{where} was trained {on} the gait prior; the env has it {'on' if have['gait_clock'] else 'off'}")
+    diff = [k for k in want if want.get(k) != have.get(k)]
+    raise Tron1Error(f"{where}: observation layout differs from the env's ({', '.join(diff)})")
