@@ -9,6 +9,8 @@ from typer.exceptions import TyperException
 
 from tron1cli import __version__
 from tron1cli.cli import bench as bench_cmd
+from tron1cli.cli import evaluate as evaluate_cmd
+from tron1cli.cli import export as export_cmd
 from tron1cli.cli import train as train_cmd
 from tron1cli.cli.common import fail
 from tron1cli.errors import Tron1Error
@@ -41,6 +43,9 @@ def _root(
 
 
 app.command("train")(train_cmd.train)
+app.command("eval")(evaluate_cmd.eval_cmd)
+app.command("push-test")(evaluate_cmd.push_test)
+app.command("export-onnx")(export_cmd.export_onnx)
 app.command("bench")(bench_cmd.bench)
 
 

@@ -51,9 +51,28 @@ def train(
     save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
     minutes: float = typer.Option(None, "--minutes", min=0.0, help="Stop after this much wall-clock time."),
     threads: int = typer.Option(2, "--threads", min=1, help="Physics and torch threads."),
+    perception: bool | None = typer.Option(
+        None,
+        "--perception/--no-perception",
+        help="Heightmap for teachers, 30 Hz depth for students [default: on except on flat].",
+        show_default=False,
+    ),
+    randomize: bool | None = typer.Option(
+        None,
+        "--randomize/--no-randomize",
+        help="Table III domain randomisation [default: on except on flat].",
+        show_default=False,
+    ),
+    pushes: bool | None = typer.Option(
+        None,
+        "--pushes/--no-pushes",
+        help="Moderate random pushes (+/-50 N, +/-5 N m) [default: on except on flat].",
+        show_default=False,
+    ),
 ) -> None:
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config import EnvConfig, GaitConfig
+    from tron1cli.env.randomization import PushConfig, RandomizationConfig
     from tron1cli.env.rewards import ABLATIONS
     from tron1cli.learn import tune_glibc_malloc
     from tron1cli.learn.config import LearnerConfig
@@ -79,12 +98,19 @@ def train(
     cfg = None
     if not resume:
         try:
+            rough = terrain != "flat"  # the paper's perceptive training; flat is the quick start
             env_cfg = EnvConfig(
                 num_envs=envs,
                 seed=seed,
                 terrain=terrain,
                 nthread=threads,
                 gait=GaitConfig(enabled=gait_prior),
+                perception=rough if perception is None else perception,
+                depth_from=int(round(envs * teacher_ratio)),  # students see depth, teachers the heightmap
+                randomization=RandomizationConfig.table_iii()
+                if (rough if randomize is None else randomize)
+                else RandomizationConfig(),
+                pushes=PushConfig.moderate() if (rough if pushes is None else pushes) else PushConfig(),
             )
             learner_cfg = replace(
                 LearnerConfig(),
@@ -113,7 +139,10 @@ def train(
         return
     err.print(
         f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher), "
-        f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, seed {c.env.seed} -> {run_dir}"
+        f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
+        f"perception {'on' if c.env.perception else 'off'}, randomisation "
+        f"{'on' if c.env.randomization.terms else 'off'}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
+        f"seed {c.env.seed} -> {run_dir}"
         + (f" (resumed at iteration {trainer.iteration})" if resume else "")
     )
     progress = Progress(

@@ -244,6 +244,13 @@ class Tron1Env:
             episode=episode,
         )
 
+    def pin_terrain_level(self, level: int) -> None:
+        """Evaluation: every env on terrain ``level`` (-1 = hardest), no curriculum; call before reset."""
+        self.curriculum.pin(level)
+        if self.model.nhfield:
+            for i, m in enumerate(self.physics.models):
+                set_tile(m, self.bank, int(self.curriculum.tile[i]))
+
     def ground_height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
         return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)

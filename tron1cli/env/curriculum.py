@@ -62,6 +62,14 @@ class TerrainCurriculum:
         self.tile[changed] = self._draw_tiles(changed)
         return changed
 
+    def pin(self, level: int) -> None:
+        """Put every env on ``level`` (negative: from the top, -1 = hardest) and stop moving them."""
+        if not -self.num_levels <= level < self.num_levels:
+            raise ValueError(f"terrain level {level} outside 0..{self.num_levels - 1}")
+        self.enabled = False
+        self.level[:] = level % self.num_levels
+        self.tile[:] = self._draw_tiles(np.arange(len(self.level)))
+
     def mean_levels(self) -> dict[str, float]:
         """Mean level per terrain type (0 = easiest, num_levels - 1 = the paper's hardest)."""
         return {

@@ -95,7 +95,9 @@ def from_metadata(props: Mapping[str, str], where: str) -> dict:
     if contract.get("format") != FORMAT:
         raise Tron1Error(f"{where} is not a tron1 policy (no '{FORMAT}' contract in its metadata)")
     if contract.get("version") != VERSION:
-        raise Tron1Error(f"{where}: policy contract version {contract.get('version')}, this tron1 reads {VERSION}")
+        raise Tron1Error(
+            f"{where}: policy contract version {contract.get('version')}, this tron1 reads {VERSION}"
+        )
     missing = [k for k in ("obs_layout", "run_config", "joint_names", "gru_hidden") if k not in contract]
     if missing:
         raise Tron1Error(f"{where}: policy contract lacks {', '.join(missing)}")
@@ -105,12 +107,16 @@ def from_metadata(props: Mapping[str, str], where: str) -> dict:
 def check_matches_env(contract: Mapping, layout: ObsLayout, where: str) -> None:
     """Refuse an env whose observation layout differs from the policy's, with one clear line."""
     if list(contract["joint_names"]) != list(robot.JOINT_NAMES):
-        raise Tron1Error(f"{where}: joint order {contract['joint_names']} differs from {list(robot.JOINT_NAMES)}")
+        raise Tron1Error(
+            f"{where}: joint order {contract['joint_names']} differs from {list(robot.JOINT_NAMES)}"
+        )
     want, have = contract["obs_layout"], layout.to_dict()
     if want == have:
         return
     if want.get("gait_clock") != have.get("gait_clock"):
         on = "with" if want.get("gait_clock") else "without"
-        raise Tron1Error(f"{where} was trained {on} the gait prior; the env has it {'on' if have['gait_clock'] else 'off'}")
+        raise Tron1Error(
+            f"{where} was trained {on} the gait prior; the env has it {'on' if have['gait_clock'] else 'off'}"
+        )
     diff = [k for k in want if want.get(k) != have.get(k)]
     raise Tron1Error(f"{where}: observation layout differs from the env's ({', '.join(diff)})")

@@ -64,7 +64,9 @@ def _onnx_bytes(student: torch.nn.Module, batch: int, hist_w: int, depth_hw, gru
     return buf.getvalue()
 
 
-def export_onnx(checkpoint: Path, out: Path | None = None, parity_steps: int = 200, tol: float = 1e-4) -> ExportReport:
+def export_onnx(
+    checkpoint: Path, out: Path | None = None, parity_steps: int = 200, tol: float = 1e-4
+) -> ExportReport:
     """Write the ONNX file (atomically), check it, and compare it with torch; see the module doc."""
     import onnx
 
@@ -91,7 +93,9 @@ def export_onnx(checkpoint: Path, out: Path | None = None, parity_steps: int = 2
     diffs = parity(checkpoint, out, parity_steps)
     worst = max(diffs.values())
     if not worst <= tol:
-        raise Tron1Error(f"onnxruntime differs from torch by {worst:.2e} (> {tol:.0e}) over {parity_steps} steps")
+        raise Tron1Error(
+            f"onnxruntime differs from torch by {worst:.2e} (> {tol:.0e}) over {parity_steps} steps"
+        )
     return ExportReport(out, parity_steps, worst, diffs, out.stat().st_size)
 
 

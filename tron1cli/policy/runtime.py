@@ -32,7 +32,9 @@ def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     try:
         run_cfg = RunConfig.from_dict(json.loads(state["config"]))
         sd = state["learner"]
-        model = VisionCTS(ObsDims.from_dict(sd["dims"]), tuple(sd["groups"]), LearnerConfig.from_dict(sd["config"]))
+        model = VisionCTS(
+            ObsDims.from_dict(sd["dims"]), tuple(sd["groups"]), LearnerConfig.from_dict(sd["config"])
+        )
         model.load_state_dict(sd["model"])
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
         raise Tron1Error(f"{path}: checkpoint does not hold a usable policy ({type(e).__name__}: {e})") from e

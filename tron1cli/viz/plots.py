@@ -50,9 +50,55 @@ def training_curves(runs: dict[str, Path], out_png: Path, group: str = "student"
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
         ax.legend()
-    fig.tight_layout()
+    return _save(fig, out_png)
+
+
+def _save(fig, out_png: Path) -> Path:
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
     return out_png
+
+
+def success_by_speed(curves: dict[str, dict[float, dict]], out_png: Path, title: str = "") -> Path:
+    """Fig. 5 style: success rate (%) against commanded speed, mean +/- std band per label.
+
+    curves: label -> speed (m/s) -> {"mean": 0-1, "std": 0-1}.
+    """
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, by_speed in curves.items():
+        v = sorted(by_speed)
+        m = [100 * by_speed[s]["mean"] for s in v]
+        sd = [100 * (by_speed[s]["std"] or 0.0) for s in v]
+        ax.plot(v, m, marker="o", label=label)
+        ax.fill_between(
+            v,
+            [a - b for a, b in zip(m, sd, strict=True)],
+            [a + b for a, b in zip(m, sd, strict=True)],
+            alpha=0.2,
+        )
+    ax.set(xlabel="commanded forward speed (m/s)", ylabel="success rate (%)", ylim=(0, 102), title=title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, out_png)
+
+
+def push_survival(survival: dict[str, dict[str, float]], out_png: Path, title: str = "") -> Path:
+    """Fig. 6 style: survival rate (%) per push type, one bar group per label.
+
+    survival: label -> push type -> 0-1.
+    """
+    labels = list(survival)
+    types = list(next(iter(survival.values())))
+    width = 0.8 / max(len(labels), 1)
+    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(types) * max(len(labels), 1)), 4))
+    for k, label in enumerate(labels):
+        xs = [i + (k - (len(labels) - 1) / 2) * width for i in range(len(types))]
+        ax.bar(xs, [100 * survival[label][t] for t in types], width=width, label=label)
+    ax.set_xticks(range(len(types)), types)
+    ax.set(xlabel="push", ylabel="survival (%)", ylim=(0, 105), title=title)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend()
+    return _save(fig, out_png)

@@ -1,0 +1,336 @@
+"""``tron1 eval`` and ``tron1 push-test``: the paper's evaluation protocols on the command line."""
+
+from __future__ import annotations
+
+import csv
+import json
+from contextlib import contextmanager
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from tron1cli.cli.common import err, fail, out, print_json
+
+POLICY_HELP = (
+    "Policy groups: [LABEL=]PATH[,PATH...] (a checkpoint .pt or an exported .onnx; several = seeds)."
+)
+
+
+def parse_groups(tokens: list[str]) -> dict[str, list[Path]]:
+    """``["ours=a.pt,b.pt", "c.onnx"]`` -> {"ours": [a.pt, b.pt], "c": [c.onnx]}; labels must be unique."""
+    groups: dict[str, list[Path]] = {}
+    for tok in tokens:
+        label, _, rest = tok.rpartition("=") if "=" in tok else ("", "", tok)
+        paths = [Path(p) for p in rest.split(",") if p]
+        if not paths:
+            raise ValueError(f"no policy path in '{tok}'")
+        label = label or (paths[0].stem if paths[0].stem != "latest" else paths[0].parent.parent.name)
+        if label in groups:
+            raise ValueError(f"label '{label}' given twice; name groups as LABEL=PATH")
+        groups[label] = paths
+    return groups
+
+
+def parse_floats(text: str, what: str) -> list[float]:
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"{what} wants numbers separated by commas, got '{text}'") from None
+    if not vals:
+        raise ValueError(f"{what} is empty")
+    return vals
+
+
+@contextmanager
+def progress_bar(total: int, what: str):
+    prog = Progress(
+        TextColumn(f"[bold]{what}"),
+        MofNCompleteColumn(),
+        BarColumn(bar_width=24),
+        TextColumn("{task.fields[now]}"),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+    )
+    task = prog.add_task(what, total=total, now="")
+    done = [0]
+
+    def advance(label: str):
+        def on_step(_t: int) -> None:
+            done[0] += 1
+            prog.update(task, completed=done[0], now=label)
+
+        return on_step
+
+    with prog:
+        yield advance
+
+
+def _fmt(m: dict, pct: bool) -> str:
+    if m["mean"] is None:
+        return "-"
+    k = 100.0 if pct else 1.0
+    return f"{k * m['mean']:.1f} ± {k * m['std']:.1f}" if pct else f"{m['mean']:.3f} ± {m['std']:.3f}"
+
+
+def eval_cmd(
+    policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
+    terrain: str = typer.Option(
+        "all", "--terrain", "-t", help="stairs, slopes, discrete, rough, flat, mixed or all."
+    ),
+    level: int = typer.Option(-1, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
+    envs: int = typer.Option(128, "--envs", "-n", min=1, help="Envs per batch (paper: 1024)."),
+    steps: int = typer.Option(
+        500, "--steps", min=1, help="Policy steps per batch (500 = 10 s, as the paper)."
+    ),
+    randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
+    speeds: str = typer.Option(
+        "", "--speeds", help="Also success rate by forward speed, e.g. 0.25,0.5,1.0 (Fig. 5)."
+    ),
+    metrics: str = typer.Option(
+        "",
+        "--metrics",
+        help="Metrics to show (default all): "
+        + ", ".join(
+            (
+                "success_rate",
+                "orientation_error",
+                "angular_velocity_error",
+                "velocity_tracking_error",
+                "reconstruction_error_cm",
+            )
+        ),
+    ),
+    seed: int = typer.Option(0, "--seed", help="Seed of the eval envs."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
+    out_dir: Path | None = typer.Option(
+        None, "--out", help="Write results.json, results.csv and plots here."
+    ),
+) -> None:
+    """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
+
+    success_rate: share of envs not fallen in the window; orientation_error: |g_b - (0,0,-1)|;
+    angular_velocity_error: mean |w_x|, |w_y| (rad/s); velocity_tracking_error: |v_cmd,xy - v_xy|
+    (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm).
+    """
+    from tron1cli.evaluation.protocol import METRICS, EvalSpec, aggregate, resolve_eval_terrains, run_batch
+    from tron1cli.policy.runtime import load_policy
+
+    try:
+        groups = parse_groups(policies)
+        terrains = resolve_eval_terrains(terrain)
+        speed_list = parse_floats(speeds, "--speeds") if speeds else []
+        shown = [m.strip() for m in metrics.split(",") if m.strip()] or list(METRICS)
+        bad = [m for m in shown if m not in METRICS]
+        if bad:
+            raise ValueError(f"unknown metric '{bad[0]}'; choose from {', '.join(METRICS)}")
+    except ValueError as e:
+        fail(str(e), 2)
+    loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    n_pol = sum(len(v) for v in loaded.values())
+    total = n_pol * steps * (len(terrains) + len(speed_list) * len(terrains))
+    results: dict = {label: {} for label in loaded}
+    by_speed: dict = {label: {t: {} for t in terrains} for label in loaded}
+    with progress_bar(total, "eval") as advance:
+        for label, pols in loaded.items():
+            for t in terrains:
+                runs = [
+                    run_batch(
+                        p, EvalSpec(t, level, envs, steps, randomize, None, seed), advance(f"{label} {t}")
+                    )
+                    for p in pols
+                ]
+                results[label][t] = {m: aggregate([r.metrics[m] for r in runs]) for m in METRICS}
+                for v in speed_list:
+                    sr = [
+                        run_batch(
+                            p,
+                            EvalSpec(t, level, envs, steps, randomize, v, seed),
+                            advance(f"{label} {t} {v} m/s"),
+                        )
+                        for p in pols
+                    ]
+                    by_speed[label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
+    report = {
+        "protocol": {
+            "terrains": list(terrains),
+            "level": level,
+            "envs": envs,
+            "steps": steps,
+            "randomize": randomize,
+            "seed": seed,
+        },
+        "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
+        "results": results,
+    }
+    if speed_list:
+        report["success_by_speed"] = {
+            lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
+            for lab, per in by_speed.items()
+        }
+    if out_dir is not None:
+        _write_eval_outputs(out_dir, report, by_speed, speed_list)
+    if as_json:
+        print_json(report)
+        return
+    table = Table(
+        title="tron1 eval (Table I)",
+        caption=f"level {level}, {envs} envs x {steps} steps, randomisation {'on' if randomize else 'off'}; "
+        "mean ± std over the policies of a method; success in %",
+    )
+    table.add_column("method")
+    table.add_column("metric")
+    for t in terrains:
+        table.add_column(t, justify="right")
+    for label in loaded:
+        for i, m in enumerate(shown):
+            cells = (_fmt(results[label][t][m], m == "success_rate") for t in terrains)
+            table.add_row(label if i == 0 else "", m, *cells, end_section=i == len(shown) - 1)
+    out.print(table)
+    if speed_list:
+        table = Table(title="success rate (%) by commanded forward speed")
+        table.add_column("method / terrain")
+        for v in speed_list:
+            table.add_column(f"{v:g} m/s", justify="right")
+        for label in loaded:
+            for t in terrains:
+                table.add_row(f"{label} / {t}", *(_fmt(by_speed[label][t][v], True) for v in speed_list))
+        out.print(table)
+    if out_dir is not None:
+        out.print(f"results written to {out_dir}/")
+
+
+def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict, speed_list: list[float]) -> None:
+    from tron1cli.viz.plots import success_by_speed
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "results.json").write_text(json.dumps(report, indent=2))
+    with open(out_dir / "results.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "terrain", "metric", "mean", "std", "n"])
+        for label, per in report["results"].items():
+            for t, ms in per.items():
+                for m, a in ms.items():
+                    w.writerow([label, t, m, a["mean"], a["std"], a["n"]])
+    if speed_list:
+        with open(out_dir / "success_by_speed.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["method", "terrain", "speed_mps", "success_mean", "success_std"])
+            for label, per in by_speed.items():
+                for t, d in per.items():
+                    for v, a in d.items():
+                        w.writerow([label, t, v, a["mean"], a["std"]])
+        for t in next(iter(by_speed.values())):
+            curves = {label: per[t] for label, per in by_speed.items()}
+            success_by_speed(curves, out_dir / f"success_by_speed_{t}.png", title=f"success by speed: {t}")
+
+
+def push_test(
+    policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
+    extreme: bool = typer.Option(
+        False, "--extreme", help="+/-400 N, +/-20 N m on flat ground (else moderate)."
+    ),
+    terrain: str | None = typer.Option(
+        None, "--terrain", "-t", help="Terrain [default: mixed for moderate, flat for --extreme]."
+    ),
+    level: int = typer.Option(-1, "--level", help="Terrain difficulty level (-1 the hardest)."),
+    envs: int = typer.Option(
+        140, "--envs", "-n", min=14, help="Envs per policy (spread over the 14 push types)."
+    ),
+    randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the envs and the mixed pushes."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
+    out_dir: Path | None = typer.Option(
+        None, "--out", help="Write results.json, results.csv and the plot here."
+    ),
+) -> None:
+    """Push recovery (Fig. 6): one push per env at t = 2 s, survival 3 s after it, per push type.
+
+    Moderate: 50 N or 5 N m for 0.2 s; extreme: 400 N or 20 N m for 0.1 s; along +/-x, +/-y, +/-z
+    of the heading frame, or a mixed random wrench on all axes; 'none' is the unpushed control.
+    """
+    from dataclasses import replace
+
+    from tron1cli.evaluation.protocol import aggregate, resolve_eval_terrains
+    from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, run_push_test
+    from tron1cli.policy.runtime import load_policy
+    from tron1cli.viz.plots import push_survival
+
+    proto = PushProtocol.extreme() if extreme else PushProtocol.moderate()
+    try:
+        groups = parse_groups(policies)
+        if terrain is not None:
+            (t,) = resolve_eval_terrains(terrain) if terrain != "all" else ("mixed",)
+            proto = replace(proto, terrain=t)
+    except ValueError as e:
+        fail(str(e), 2)
+    loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    steps = proto.steps(next(iter(loaded.values()))[0].run_cfg.env.policy_dt)
+    survival: dict = {}
+    overall: dict = {}
+    with progress_bar(steps * sum(len(v) for v in loaded.values()), "push-test") as advance:
+        for label, pols in loaded.items():
+            res = [run_push_test(p, proto, envs, level, seed, randomize, advance(label)) for p in pols]
+            survival[label] = {k: aggregate([r.survival[k] for r in res]) for k in PUSH_TYPES}
+            overall[label] = aggregate([r.survival_rate for r in res])
+    report = {
+        "protocol": {
+            "name": proto.name,
+            "force_n": proto.force_n,
+            "torque_nm": proto.torque_nm,
+            "duration_s": proto.duration_s,
+            "push_at_s": proto.push_at_s,
+            "watch_s": proto.watch_s,
+            "terrain": proto.terrain,
+            "level": level,
+            "envs": envs,
+            "seed": seed,
+            "randomize": randomize,
+        },
+        "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
+        "methods": {
+            label: {
+                "survival_rate": overall[label]["mean"],
+                "survival_rate_std": overall[label]["std"],
+                "per_push": {k: v["mean"] for k, v in survival[label].items()},
+                "per_push_std": {k: v["std"] for k, v in survival[label].items()},
+            }
+            for label in loaded
+        },
+    }
+    if len(loaded) == 1:  # one method: its figures at the top level too
+        (only,) = report["methods"].values()
+        report["survival_rate"] = only["survival_rate"]
+        report["per_push"] = only["per_push"]
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "results.json").write_text(json.dumps(report, indent=2))
+        with open(out_dir / "results.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["method", "push", "survival_mean", "survival_std"])
+            for label in loaded:
+                for k, a in survival[label].items():
+                    w.writerow([label, k, a["mean"], a["std"]])
+        push_survival(
+            {label: {k: a["mean"] for k, a in survival[label].items()} for label in loaded},
+            out_dir / "push_survival.png",
+            title=f"{proto.name} pushes on {proto.terrain}",
+        )
+    if as_json:
+        print_json(report)
+        return
+    table = Table(
+        title=f"{proto.name} push survival (%) on {proto.terrain}, level {level}, "
+        f"{envs // len(PUSH_TYPES)} envs per push"
+    )
+    table.add_column("push")
+    for label in loaded:
+        table.add_column(label, justify="right")
+    for k in PUSH_TYPES:
+        table.add_row(k, *(_fmt(survival[label][k], True) for label in loaded))
+    table.add_row("[bold]overall (pushed)", *(_fmt(overall[label], True) for label in loaded))
+    out.print(table)
+    if out_dir is not None:
+        out.print(f"results written to {out_dir}/")
