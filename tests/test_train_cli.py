@@ -99,3 +99,29 @@ def test_checkpoint_refuses_pickled_objects(tmp_path):
     torch.save({"format": "tron1cli-checkpoint", "version": 1, "obj": Fraction(1, 3)}, p)
     with pytest.raises(Tron1Error, match="cannot read checkpoint"):
         load_checkpoint(p)
+
+
+def test_saved_reward_is_restored_not_rebuilt():
+    from tron1cli.train.runner import RunConfig
+
+    d = json.loads(json.dumps(RunConfig().to_dict()))
+    d["reward"]["terms"]["alive"]["weight"] = 0.7  # a run trained with another default
+    cfg = RunConfig.from_dict(d)
+    assert cfg.reward.terms["alive"].weight == 0.7
+    assert RunConfig.from_dict(cfg.to_dict()).to_dict() == cfg.to_dict()
+
+
+def test_stairs_run_has_perception_and_logs_terrain_levels(tmp_path):
+    run = tmp_path / "stairs"
+    r = tron1("train", *SMALL, "--terrain", "stairs", "--iterations", "1", "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    assert "perception on, randomisation on, pushes on" in " ".join(r.stderr.split())
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["env"]["perception"] and cfg["env"]["depth_from"] == 8
+    (m,) = metrics(run)
+    assert set(k for k in m if k.startswith("terrain/level/")) == {
+        "terrain/level/stairs_up",
+        "terrain/level/stairs_down",
+    }
+    for key in ("learn/rec_heightmap", "learn/rec_latent_h", "learn/rec_privileged"):
+        assert m[key] >= 0

@@ -3,7 +3,8 @@
 The raw rate is measured on exactly the env's own workload: the bench records the state and the
 controls that every env step handed to ``mujoco.rollout`` and then replays them through rollout
 alone, so the ratio counts what the env core adds (observations, commands, terminations, resets)
-and nothing else.
+and nothing else. With perception the sensors are also timed on their own: the 441-point height
+scan and the 80 x 60 depth render of every env, from the states the run ended in.
 """
 
 from __future__ import annotations
@@ -16,13 +17,34 @@ import numpy as np
 
 from tron1cli.config import EnvConfig
 from tron1cli.env.core import Tron1Env
+from tron1cli.env.math3d import yaw_of
 
 
 def run_bench(
-    num_envs: int = 1024, steps: int = 100, warmup: int = 10, seed: int = 0, nthread: int = 2
+    num_envs: int = 1024,
+    steps: int = 100,
+    warmup: int = 10,
+    seed: int = 0,
+    nthread: int = 2,
+    terrain: str = "flat",
+    perception: bool = False,
+    level: int = 5,
 ) -> dict:
-    """Measure raw and env policy-step rates; returns a flat dict of figures."""
-    env = Tron1Env(EnvConfig(num_envs=num_envs, seed=seed, nthread=nthread))
+    """Measure raw and env policy-step rates (and sensor rates with perception); a flat dict of figures.
+
+    With perception, students (the second half of the envs) render depth at 30 Hz as in training;
+    non-flat terrain starts every env on difficulty ``level``.
+    """
+    cfg = EnvConfig(
+        num_envs=num_envs,
+        seed=seed,
+        nthread=nthread,
+        terrain=terrain,
+        perception=perception,
+        depth_from=num_envs // 2,
+        max_init_level=level,
+    )
+    env = Tron1Env(cfg)
     try:
         env.reset()
         rng = np.random.default_rng(seed)
@@ -45,6 +67,7 @@ def run_bench(
             phys.control[:] = controls[i]
             phys.rollout()
         raw_seconds = time.perf_counter() - t0
+        sensors = _time_sensors(env) if perception else {}
     finally:
         env.close()
     raw = steps * num_envs / raw_seconds
@@ -58,6 +81,29 @@ def run_bench(
         "raw_steps_per_s": raw,
         "env_steps_per_s": full,
         "ratio": full / raw,
+        "perception": perception,
+        **sensors,
         "cpu_count": os.cpu_count(),
         "machine": platform.machine(),
+    }
+
+
+def _time_sensors(env: Tron1Env, repeats: int = 5) -> dict:
+    """Height scans and depth images per second over every env (the env's own compiled code)."""
+    ids = np.arange(env.n)
+    s = env.state
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        env.height_scan.scan(
+            env.bank.heights, env.curriculum.tile, s.base_pos, yaw_of(s.base_quat), env.bank.res
+        )
+    scan_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        env._render_depth(ids)
+    depth_s = time.perf_counter() - t0
+    return {
+        "heightmaps_per_s": repeats * env.n / scan_s,
+        "depth_images_per_s": repeats * env.n / depth_s,
+        "depth_ms_per_image": 1e3 * depth_s / (repeats * env.n),
     }

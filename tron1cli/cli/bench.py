@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import err, out, print_json
+from tron1cli.cli.common import err, fail, out, print_json
 
 
 def bench(
@@ -13,17 +13,34 @@ def bench(
     steps: int = typer.Option(100, "--steps", min=1, help="Timed policy steps (after 10 warm-up steps)."),
     threads: int = typer.Option(2, "--threads", min=1, help="Physics threads."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
+    terrain: str = typer.Option(
+        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
+    ),
+    perception: bool = typer.Option(
+        False, "--perception", help="Height scan for every env and 30 Hz depth for the student half."
+    ),
+    level: int = typer.Option(5, "--level", min=0, help="Terrain difficulty level the envs start on."),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Measure the env step rate and the raw mujoco.rollout rate of the same workload."""
     from tron1cli.benchmark import run_bench
+    from tron1cli.env.terrain import resolve_terrain
 
+    try:
+        resolve_terrain(terrain)
+    except ValueError as e:
+        fail(str(e), 2)
     with err.status(f"stepping {envs} envs for {steps} policy steps..."):
-        res = run_bench(num_envs=envs, steps=steps, seed=seed, nthread=threads)
+        res = run_bench(
+            envs, steps, seed=seed, nthread=threads, terrain=terrain, perception=perception, level=level
+        )
     if json_out:
         print_json(res)
         return
-    t = Table(title=f"tron1 bench: {envs} envs, flat, decimation {res['decimation']}, {threads} threads")
+    title = (
+        f"tron1 bench: {envs} envs, {terrain}, perception {'on' if perception else 'off'}, {threads} threads"
+    )
+    t = Table(title=title)
     t.add_column("what")
     t.add_column("policy steps/s", justify="right")
     t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}")
@@ -31,4 +48,10 @@ def bench(
         "env core step (physics, obs, commands, terminations, resets)", f"{res['env_steps_per_s']:,.0f}"
     )
     t.add_row("ratio env / raw", f"{res['ratio']:.2f}")
+    if perception:
+        t.add_row("height scans (441 points), every env", f"{res['heightmaps_per_s']:,.0f} /s")
+        t.add_row(
+            "depth images (80 x 60), every env",
+            f"{res['depth_images_per_s']:,.0f} /s ({res['depth_ms_per_image']:.3f} ms each)",
+        )
     out.print(t)

@@ -47,6 +47,9 @@ class RunConfig:
     gait_prior: bool = True
     iterations: int = 1000
     save_every: int = 50
+    #: the reward a saved run was trained with (restored from its config); None: built from
+    #: ``ablation`` and ``gait_prior`` with this version's defaults
+    saved_reward: RewardConfig | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
@@ -58,18 +61,20 @@ class RunConfig:
 
     @property
     def reward(self) -> RewardConfig:
-        return make_reward_config(self.ablation, gait_prior=self.gait_prior)
+        return self.saved_reward or make_reward_config(self.ablation, gait_prior=self.gait_prior)
 
     def to_dict(self) -> dict:
-        d = to_plain(self)
-        d["reward"] = self.reward.to_dict()  # resolved, for the record; rebuilt from ablation on load
+        d = to_plain(replace(self, saved_reward=None))
+        del d["saved_reward"]
+        d["reward"] = self.reward.to_dict()  # resolved: a resumed or evaluated run gets exactly this
         d["tron1cli_version"] = __version__
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
-        d = {k: v for k, v in d.items() if k not in ("reward", "tron1cli_version")}
-        return from_plain(cls, d)
+        reward = d.get("reward")
+        cfg = from_plain(cls, {k: v for k, v in d.items() if k not in ("reward", "tron1cli_version")})
+        return replace(cfg, saved_reward=RewardConfig.from_dict(reward)) if reward else cfg
 
 
 def obs_dims(env: Tron1Env) -> ObsDims:
@@ -193,6 +198,10 @@ class Trainer:
                 }
                 m.update({f"step_reward/{g}": v / T for g, v in group_reward.items()})
                 m.update(self.stats.summary())
+                if env.model.nhfield:  # terrain level per type (0 easiest .. num_levels - 1)
+                    levels = env.curriculum.mean_levels()
+                    m.update({f"terrain/level/{t}": v for t, v in levels.items()})
+                    m["terrain/mean_level"] = float(env.curriculum.level.mean())
                 m.update({f"learn/{k}": v for k, v in learn_stats.items()})
                 mlog.write(
                     json.dumps(
