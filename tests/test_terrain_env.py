@@ -151,8 +151,16 @@ def test_same_seed_same_terrain_and_trajectory():
 def test_bench_reports_sensor_rates():
     from tron1cli.benchmark import run_bench
 
-    res = run_bench(num_envs=8, steps=3, warmup=1, nthread=1, terrain="stairs", perception=True)
-    assert res["terrain"] == "stairs" and res["perception"] is True
-    for key in ("raw_steps_per_s", "env_steps_per_s", "heightmaps_per_s", "depth_images_per_s"):
+    res = run_bench(num_envs=8, steps=3, warmup=1, nthread=1, terrain="stairs", depth=True)
+    assert res["terrain"] == "stairs" and res["depth"] is True
+    keys = (
+        "raw_steps_per_s",
+        "env_steps_per_s",
+        "env_depth_steps_per_s",
+        "heightmaps_per_s",
+        "depth_images_per_s",
+    )
+    for key in keys:
         assert res[key] > 0
     assert res["depth_ms_per_image"] == pytest.approx(1e3 / res["depth_images_per_s"])
+    assert res["depth_ratio"] == pytest.approx(res["env_depth_steps_per_s"] / res["raw_steps_per_s"])

@@ -20,6 +20,40 @@ from tron1cli.env.core import Tron1Env
 from tron1cli.env.math3d import yaw_of
 
 
+def _env(num_envs: int, seed: int, nthread: int, terrain: str, level: int, depth: bool) -> Tron1Env:
+    cfg = EnvConfig(
+        num_envs=num_envs,
+        seed=seed,
+        nthread=nthread,
+        terrain=terrain,
+        perception=depth,
+        depth_from=num_envs // 2,
+        max_init_level=level,
+    )
+    return Tron1Env(cfg)
+
+
+def _time_env(env: Tron1Env, actions: np.ndarray, warmup: int, record: bool):
+    """Seconds spent in ``env.step`` over the timed steps; with ``record`` also the rollout inputs."""
+    env.reset()
+    for i in range(warmup):
+        env.step(actions[i])
+    phys = env.physics
+    steps = len(actions) - warmup
+    states = np.empty((steps,) + phys.state.shape) if record else None
+    controls = np.empty((steps,) + phys.control.shape) if record else None
+    seconds = 0.0
+    for i in range(steps):
+        if record:
+            states[i] = phys.state
+        t0 = time.perf_counter()
+        env.step(actions[warmup + i])
+        seconds += time.perf_counter() - t0
+        if record:
+            controls[i] = phys.control
+    return seconds, states, controls
+
+
 def run_bench(
     num_envs: int = 1024,
     steps: int = 100,
@@ -27,65 +61,53 @@ def run_bench(
     seed: int = 0,
     nthread: int = 2,
     terrain: str = "flat",
-    perception: bool = False,
+    depth: bool = False,
     level: int = 5,
 ) -> dict:
-    """Measure raw and env policy-step rates (and sensor rates with perception); a flat dict of figures.
+    """Measure raw and env policy-step rates (and, with ``depth``, the perceptive env and its
+    sensors); returns a flat dict of figures.
 
-    With perception, students (the second half of the envs) render depth at 30 Hz as in training;
-    non-flat terrain starts every env on difficulty ``level``.
+    The perceptive env renders depth at 30 Hz for the student half of the envs and scans heights
+    for every env, as in training; non-flat terrain starts every env on difficulty ``level``.
     """
-    cfg = EnvConfig(
-        num_envs=num_envs,
-        seed=seed,
-        nthread=nthread,
-        terrain=terrain,
-        perception=perception,
-        depth_from=num_envs // 2,
-        max_init_level=level,
-    )
-    env = Tron1Env(cfg)
+    rng = np.random.default_rng(seed)
+    actions = rng.normal(0.0, 0.5, (warmup + steps, num_envs, 6))
+    env = _env(num_envs, seed, nthread, terrain, level, depth=False)
     try:
-        env.reset()
-        rng = np.random.default_rng(seed)
-        actions = rng.normal(0.0, 0.5, (warmup + steps, num_envs, 6))
-        for i in range(warmup):
-            env.step(actions[i])
+        env_seconds, states, controls = _time_env(env, actions, warmup, record=True)
         phys = env.physics
-        states = np.empty((steps,) + phys.state.shape)
-        controls = np.empty((steps,) + phys.control.shape)
-        env_seconds = 0.0
-        for i in range(steps):
-            states[i] = phys.state
-            t0 = time.perf_counter()
-            env.step(actions[warmup + i])
-            env_seconds += time.perf_counter() - t0
-            controls[i] = phys.control
         t0 = time.perf_counter()
         for i in range(steps):
             phys.state[:] = states[i]
             phys.control[:] = controls[i]
             phys.rollout()
         raw_seconds = time.perf_counter() - t0
-        sensors = _time_sensors(env) if perception else {}
     finally:
         env.close()
     raw = steps * num_envs / raw_seconds
     full = steps * num_envs / env_seconds
-    return {
+    res = {
         "num_envs": num_envs,
         "steps": steps,
         "decimation": env.cfg.decimation,
         "nthread": nthread,
-        "terrain": env.cfg.terrain,
+        "terrain": terrain,
         "raw_steps_per_s": raw,
         "env_steps_per_s": full,
         "ratio": full / raw,
-        "perception": perception,
-        **sensors,
-        "cpu_count": os.cpu_count(),
-        "machine": platform.machine(),
+        "depth": depth,
     }
+    if depth:
+        denv = _env(num_envs, seed, nthread, terrain, level, depth=True)
+        try:
+            depth_seconds, _, _ = _time_env(denv, actions, warmup, record=False)
+            res["env_depth_steps_per_s"] = steps * num_envs / depth_seconds
+            res["depth_ratio"] = res["env_depth_steps_per_s"] / raw
+            res.update(_time_sensors(denv))
+        finally:
+            denv.close()
+    res.update({"cpu_count": os.cpu_count(), "machine": platform.machine()})
+    return res
 
 
 def _time_sensors(env: Tron1Env, repeats: int = 5) -> dict:

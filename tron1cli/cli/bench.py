@@ -16,8 +16,10 @@ def bench(
     terrain: str = typer.Option(
         "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
     ),
-    perception: bool = typer.Option(
-        False, "--perception", help="Height scan for every env and 30 Hz depth for the student half."
+    depth: bool = typer.Option(
+        False,
+        "--depth/--no-depth",
+        help="Also time the perceptive env: height scans for every env, 30 Hz depth for the student half.",
     ),
     level: int = typer.Option(5, "--level", min=0, help="Terrain difficulty level the envs start on."),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
@@ -32,15 +34,12 @@ def bench(
         fail(str(e), 2)
     with err.status(f"stepping {envs} envs for {steps} policy steps..."):
         res = run_bench(
-            envs, steps, seed=seed, nthread=threads, terrain=terrain, perception=perception, level=level
+            envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level
         )
     if json_out:
         print_json(res)
         return
-    title = (
-        f"tron1 bench: {envs} envs, {terrain}, perception {'on' if perception else 'off'}, {threads} threads"
-    )
-    t = Table(title=title)
+    t = Table(title=f"tron1 bench: {envs} envs, {terrain}, {threads} threads")
     t.add_column("what")
     t.add_column("policy steps/s", justify="right")
     t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}")
@@ -48,7 +47,9 @@ def bench(
         "env core step (physics, obs, commands, terminations, resets)", f"{res['env_steps_per_s']:,.0f}"
     )
     t.add_row("ratio env / raw", f"{res['ratio']:.2f}")
-    if perception:
+    if depth:
+        t.add_row("env core step with height scans and 30 Hz depth", f"{res['env_depth_steps_per_s']:,.0f}")
+        t.add_row("ratio env with depth / raw", f"{res['depth_ratio']:.2f}")
         t.add_row("height scans (441 points), every env", f"{res['heightmaps_per_s']:,.0f} /s")
         t.add_row(
             "depth images (80 x 60), every env",
