@@ -125,3 +125,28 @@ def test_stairs_run_has_perception_and_logs_terrain_levels(tmp_path):
     }
     for key in ("learn/rec_heightmap", "learn/rec_latent_h", "learn/rec_privileged"):
         assert m[key] >= 0
+
+
+def test_killed_run_saves_and_resumes(tmp_path):
+    import signal
+    import time
+
+    run = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tron1cli", "train", *SMALL, "--iterations", "1000", "--run-dir", str(run)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+    )
+    deadline = time.time() + 300
+    while time.time() < deadline and not ((run / "metrics.jsonl").exists() and len(metrics(run)) >= 2):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "checkpoint saved" in stderr
+    done = load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"]
+    assert done >= 2
+    r = tron1("train", "--resume", "--iterations", str(done + 1), "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == done + 1

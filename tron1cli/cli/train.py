@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -167,6 +168,10 @@ def train(
             figs += f" | level {_fmt(m['terrain/mean_level'])}"
         progress.update(task, completed=m["iteration"], figures=figs)
 
+    def _terminate(signum, frame):  # `kill` (SIGTERM) saves like Ctrl-C does
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         with progress:
             last = trainer.run(show, max_minutes=minutes)
