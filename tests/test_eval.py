@@ -139,3 +139,35 @@ def test_bad_input_one_line(tiny_ckpt, args, code, text):
     r = tron1(*(a.format(ckpt=tiny_ckpt) for a in args))
     assert r.returncode == code and text in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+def test_eval_streams_reconstruction_to_rerun(tiny_ckpt_vision, tmp_path):
+    from tron1cli.viz.rerun_stream import read_rrd
+
+    rrd = tmp_path / "eval.rrd"
+    r = tron1(
+        "eval",
+        str(tiny_ckpt_vision),
+        "--terrain",
+        "stairs",
+        "--level",
+        "3",
+        "--envs",
+        "2",
+        "--steps",
+        "12",
+        "--rerun",
+        f"save={rrd}",
+        "--json",
+    )
+    assert r.returncode == 0, r.stderr
+    data = read_rrd(rrd)
+    for path in (
+        "world/lipm/com",
+        "world/lipm/desired_com",
+        "world/lipm/zmp",
+        "world/camera/depth",
+        "world/heightmap/true",
+        "world/heightmap/reconstructed",
+    ):
+        assert path in data, path

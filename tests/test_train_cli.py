@@ -150,3 +150,27 @@ def test_killed_run_saves_and_resumes(tmp_path):
     r = tron1("train", "--resume", "--iterations", str(done + 1), "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == done + 1
+
+
+def test_train_streams_an_episode_to_rerun(tmp_path):
+    from tron1cli.viz.rerun_stream import read_rrd
+
+    rrd = tmp_path / "train.rrd"
+    run = tmp_path / "run"
+    r = tron1(
+        "train",
+        *SMALL,
+        "--iterations",
+        "2",
+        "--run-dir",
+        str(run),
+        "--rerun",
+        f"save={rrd}",
+        "--rerun-every",
+        "1",
+    )
+    assert r.returncode == 0, r.stderr
+    data = read_rrd(rrd)
+    assert "world/lipm/com" in data and "reward_group/stable" in data
+    r = tron1("train", *SMALL, "--run-dir", str(tmp_path / "x"), "--rerun", "nowhere")
+    assert r.returncode == 2 and "unknown target" in r.stderr

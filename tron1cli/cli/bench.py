@@ -33,9 +33,7 @@ def bench(
     except ValueError as e:
         fail(str(e), 2)
     with err.status(f"stepping {envs} envs for {steps} policy steps..."):
-        res = run_bench(
-            envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level
-        )
+        res = run_bench(envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level)
     if json_out:
         print_json(res)
         return

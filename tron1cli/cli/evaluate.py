@@ -12,7 +12,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
+RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
 POLICY_HELP = (
     "Policy groups: [LABEL=]PATH[,PATH...] (a checkpoint .pt or an exported .onnx; several = seeds)."
 )
@@ -108,6 +110,7 @@ def eval_cmd(
     out_dir: Path | None = typer.Option(
         None, "--out", help="Write results.json, results.csv and plots here."
     ),
+    rerun: str = typer.Option("off", "--rerun", help="Stream env 0 of the first batch: " + RERUN_FORMS),
 ) -> None:
     """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
 
@@ -126,6 +129,7 @@ def eval_cmd(
         bad = [m for m in shown if m not in METRICS]
         if bad:
             raise ValueError(f"unknown metric '{bad[0]}'; choose from {', '.join(METRICS)}")
+        target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
@@ -133,15 +137,17 @@ def eval_cmd(
     total = n_pol * steps * (len(terrains) + len(speed_list) * len(terrains))
     results: dict = {label: {} for label in loaded}
     by_speed: dict = {label: {t: {} for t in terrains} for label in loaded}
+    stream = open_stream(target, recording_name="tron1 eval")
     with progress_bar(total, "eval") as advance:
         for label, pols in loaded.items():
             for t in terrains:
-                runs = [
-                    run_batch(
-                        p, EvalSpec(t, level, envs, steps, randomize, None, seed), advance(f"{label} {t}")
-                    )
-                    for p in pols
-                ]
+                runs = []
+                for p in pols:
+                    spec = EvalSpec(t, level, envs, steps, randomize, None, seed)
+                    runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream))
+                    if stream is not None:  # the first batch only: one episode on one timeline
+                        stream.close()
+                        stream = None
                 results[label][t] = {m: aggregate([r.metrics[m] for r in runs]) for m in METRICS}
                 for v in speed_list:
                     sr = [
@@ -245,6 +251,8 @@ def push_test(
     out_dir: Path | None = typer.Option(
         None, "--out", help="Write results.json, results.csv and the plot here."
     ),
+    rerun: str = typer.Option("off", "--rerun", help="Stream one pushed env: " + RERUN_FORMS),
+    watch: str = typer.Option("+Fx", "--watch", help="Push type of the env --rerun streams."),
 ) -> None:
     """Push recovery (Fig. 6): one push per env at t = 2 s, survival 3 s after it, per push type.
 
@@ -264,15 +272,26 @@ def push_test(
         if terrain is not None:
             (t,) = resolve_eval_terrains(terrain) if terrain != "all" else ("mixed",)
             proto = replace(proto, terrain=t)
+        if watch not in PUSH_TYPES:
+            raise ValueError(f"unknown push type '{watch}'; choose from {', '.join(PUSH_TYPES)}")
+        target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    stream = open_stream(target, recording_name=f"tron1 push-test {proto.name}")
     steps = proto.steps(next(iter(loaded.values()))[0].run_cfg.env.policy_dt)
     survival: dict = {}
     overall: dict = {}
     with progress_bar(steps * sum(len(v) for v in loaded.values()), "push-test") as advance:
         for label, pols in loaded.items():
-            res = [run_push_test(p, proto, envs, level, seed, randomize, advance(label)) for p in pols]
+            res = []
+            for p in pols:
+                res.append(
+                    run_push_test(p, proto, envs, level, seed, randomize, advance(label), stream, watch)
+                )
+                if stream is not None:  # the first policy only
+                    stream.close()
+                    stream = None
             survival[label] = {k: aggregate([r.survival[k] for r in res]) for k in PUSH_TYPES}
             overall[label] = aggregate([r.survival_rate for r in res])
     report = {

@@ -64,6 +64,13 @@ def train(
         help="Table III domain randomisation [default: on except on flat].",
         show_default=False,
     ),
+    rerun: str = typer.Option(
+        "off",
+        "--rerun",
+        help="Stream one student episode every --rerun-every iterations: spawn, save=FILE.rrd, "
+        "connect[=URL] or off.",
+    ),
+    rerun_every: int = typer.Option(50, "--rerun-every", min=1, help="Iterations between streamed episodes."),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -94,6 +101,12 @@ def train(
             raise ValueError
     except ValueError:
         fail(f"--hidden wants positive integers separated by commas, got '{hidden}'", 2)
+    from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
+
+    try:
+        target = parse_rerun_option(rerun)
+    except ValueError as e:
+        fail(str(e), 2)
     check_run_dir(run_dir, resume)
     tune_glibc_malloc()
     cfg = None
@@ -143,8 +156,7 @@ def train(
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{'on' if c.env.randomization.terms else 'off'}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
-        f"seed {c.env.seed} -> {run_dir}"
-        + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+        f"seed {c.env.seed} -> {run_dir}" + (f" (resumed at iteration {trainer.iteration})" if resume else "")
     )
     progress = Progress(
         TextColumn("[bold]iter"),
@@ -172,14 +184,19 @@ def train(
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)
+    stream = open_stream(target, recording_name=f"tron1 train {run_dir}")
     try:
         with progress:
-            last = trainer.run(show, max_minutes=minutes)
+            last = trainer.run(show, max_minutes=minutes, stream=stream, stream_every=rerun_every)
     except KeyboardInterrupt:
         path = trainer.save()
         trainer.close()
+        if stream is not None:
+            stream.close()
         fail(f"interrupted at iteration {trainer.iteration}: checkpoint saved to {path}", 130)
     trainer.close()
+    if stream is not None:
+        stream.close()
     t = Table(
         title=f"tron1 train: {trainer.iteration} iterations, {trainer.env_steps:,} env steps, "
         f"{trainer.wall_s / 60:.1f} min"

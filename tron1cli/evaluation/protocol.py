@@ -123,8 +123,11 @@ def run_batch(
     spec: EvalSpec,
     on_step: Callable[[int], None] | None = None,
     before_step: Callable[[Tron1Env, int], None] | None = None,
+    stream=None,
+    stream_env: int = 0,
 ) -> EvalResult:
-    """Run one batch; ``before_step(env, t)`` may set commands or wrenches (push tests)."""
+    """Run one batch; ``before_step(env, t)`` may set commands or wrenches (push tests);
+    ``stream`` (a :class:`tron1cli.viz.rerun_stream.RerunStream`) gets env ``stream_env`` each step."""
     env = make_env(policy, spec)
     try:
         n = env.n
@@ -144,6 +147,8 @@ def run_batch(
                 rec_count += err.size
             if before_step is not None:
                 before_step(env, t)
+            if stream is not None:
+                stream.log_step(env, stream_env, t, t * env.policy_dt, extras={"h_hat": h_hat})
             res = env.step(action)
             fell |= walking & (res.failed | res.unstable)
             crossed |= walking & res.time_out

@@ -86,7 +86,11 @@ def run_push_test(
     seed: int = 0,
     randomize: bool = True,
     on_step: Callable[[int], None] | None = None,
+    stream=None,
+    watch: str = "+Fx",
 ) -> PushResult:
+    """One batch of ``num_envs`` under ``proto``; ``stream`` (rerun) gets the first env whose push
+    type is ``watch``."""
     dt = policy.run_cfg.env.policy_dt
     spec = EvalSpec(
         terrain=proto.terrain,
@@ -113,7 +117,9 @@ def run_push_test(
         elif t == stop:
             env.external_wrench[:] = 0.0
 
-    res = run_batch(policy, spec, on_step=on_step, before_step=push)
+    res = run_batch(
+        policy, spec, on_step=on_step, before_step=push, stream=stream, stream_env=PUSH_TYPES.index(watch)
+    )
     survival = {name: float(1.0 - res.fell[types == t].mean()) for t, name in enumerate(PUSH_TYPES)}
     pushed = types != 0
     return PushResult(survival, float(1.0 - res.fell[pushed].mean()), num_envs // len(PUSH_TYPES))

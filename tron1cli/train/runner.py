@@ -158,10 +158,21 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------
     def run(
-        self, on_iteration: Callable[[dict], None] | None = None, max_minutes: float | None = None
+        self,
+        on_iteration: Callable[[dict], None] | None = None,
+        max_minutes: float | None = None,
+        stream=None,
+        stream_every: int = 50,
     ) -> dict:
-        """Train until ``cfg.iterations`` (or ``max_minutes`` of wall clock); returns the last metrics."""
+        """Train until ``cfg.iterations`` (or ``max_minutes`` of wall clock); returns the last metrics.
+
+        stream: a rerun stream (:mod:`tron1cli.viz.rerun_stream`); every ``stream_every``
+        iterations it follows the first student env (the first env when all are teachers) from
+        that iteration until its episode ends, on a global ``step`` timeline.
+        """
         self._write_config()
+        watched = min(self.n_teacher, self.env.n - 1)
+        following = False
         start = time.perf_counter()
         env, learner, n_t = self.env, self.learner, self.n_teacher
         obs = env.reset(stagger=True)
@@ -171,9 +182,14 @@ class Trainer:
             while self.iteration < self.cfg.iterations:
                 t0 = time.perf_counter()
                 group_reward = {g: 0.0 for g in env.reward_cfg.groups}
-                for _ in range(T):
+                following |= stream is not None and self.iteration % stream_every == 0
+                for t in range(T):
                     actions = learner.act(obs)
+                    if following:
+                        step = self.iteration * T + t
+                        stream.log_step(env, watched, step, step * env.policy_dt)
                     res = env.step(actions)
+                    following &= not res.done[watched]
                     learner.process_step(res.rewards, res.done, res.time_out, res.terminal_obs)
                     for g, r in res.rewards.items():
                         group_reward[g] += float(r.mean())
