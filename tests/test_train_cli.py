@@ -64,6 +64,8 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--envs", "0"], 2, "--envs"),
         (["--iterations", "-1"], 2, "--iterations"),
         (["--hidden", "a,b"], 2, "--hidden"),
+        (["--critic-weights", "speed=2"], 2, "unknown reward group 'speed'"),
+        (["--ablation", "single-critic", "--critic-weights", "stable=0.5"], 2, "groups: all"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):

@@ -64,6 +64,11 @@ def train(
         help="Table III domain randomisation [default: on except on flat].",
         show_default=False,
     ),
+    critic_weights: str = typer.Option(
+        "",
+        "--critic-weights",
+        help="Weights of the per-group normalised advantages, e.g. stable=0.5,loco=1 [default: all 1].",
+    ),
     rerun: str = typer.Option(
         "off",
         "--rerun",
@@ -81,7 +86,7 @@ def train(
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config import EnvConfig, GaitConfig
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS
+    from tron1cli.env.rewards import ABLATIONS, make_reward_config
     from tron1cli.learn import tune_glibc_malloc
     from tron1cli.learn.config import LearnerConfig
     from tron1cli.train.runner import RunConfig, Trainer, check_run_dir
@@ -107,6 +112,19 @@ def train(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    try:
+        weights = {
+            k.strip(): float(v) for k, v in (kv.split("=") for kv in critic_weights.split(",") if kv.strip())
+        }
+    except ValueError:
+        fail(f"--critic-weights wants GROUP=NUMBER pairs separated by commas, got '{critic_weights}'", 2)
+    groups = make_reward_config(ablation, gait_prior=gait_prior).groups
+    unknown = sorted(set(weights) - set(groups))
+    if unknown:
+        fail(
+            f"--critic-weights: unknown reward group '{unknown[0]}'; this run's groups: {', '.join(groups)}",
+            2,
+        )
     check_run_dir(run_dir, resume)
     tune_glibc_malloc()
     cfg = None
@@ -132,6 +150,7 @@ def train(
                 num_steps_per_env=steps_per_env,
                 actor_hidden=sizes,
                 critic_hidden=sizes,
+                critic_weights=weights,
             )
             cfg = RunConfig(
                 env=env_cfg,
