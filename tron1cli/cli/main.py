@@ -9,6 +9,7 @@ from typer.exceptions import TyperException
 
 from tron1cli import __version__
 from tron1cli.cli import bench as bench_cmd
+from tron1cli.cli import deploy_sim as deploy_sim_cmd
 from tron1cli.cli import evaluate as evaluate_cmd
 from tron1cli.cli import export as export_cmd
 from tron1cli.cli import train as train_cmd
@@ -46,6 +47,7 @@ app.command("train")(train_cmd.train)
 app.command("eval")(evaluate_cmd.eval_cmd)
 app.command("push-test")(evaluate_cmd.push_test)
 app.command("export-onnx")(export_cmd.export_onnx)
+app.command("deploy-sim")(deploy_sim_cmd.deploy_sim)
 app.command("bench")(bench_cmd.bench)
 
 

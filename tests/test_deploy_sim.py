@@ -1,0 +1,295 @@
+"""``tron1 deploy-sim``: the ONNX policy in MuJoCo with its depth camera in its own thread."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from dataclasses import replace
+
+import numpy as np
+import onnx
+import pytest
+import typer
+
+import tron1cli.cli.main as cli_main
+from tron1cli.cli.deploy_sim import deploy_sim
+from tron1cli.deploy.pipeline import DeployConfig, DeploySim
+from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
+from tron1cli.policy.export import export_onnx
+from tron1cli.policy.runtime import load_policy
+
+REPORT_KEYS = (
+    "survived",
+    "duration_s",
+    "vel_tracking_error",
+    "policy_ms_p50",
+    "policy_ms_p99",
+    "realtime_factor",
+    "com_error_m",
+    "depth_age_ms_p50",
+    "depth_age_ms_p99",
+    "depth_render_ms_p50",
+    "unstable",
+)
+
+
+@pytest.fixture(scope="module")
+def vision_onnx(tiny_ckpt_vision, tmp_path_factory):
+    return export_onnx(tiny_ckpt_vision, tmp_path_factory.mktemp("deploy") / "v.onnx", parity_steps=20).path
+
+
+def run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """Run ``tron1 deploy-sim ARGS`` through the real entry point's error handling."""
+    app = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+    app.callback()(lambda: None)
+    app.command("deploy-sim")(deploy_sim)
+    monkeypatch.setattr(cli_main, "app", app)
+    monkeypatch.setattr(sys, "argv", ["tron1", "deploy-sim", *args])
+    with pytest.raises(SystemExit) as e:
+        cli_main.main()
+    cap = capsys.readouterr()
+    return e.value.code, cap.out, cap.err
+
+
+@pytest.fixture
+def no_falls(monkeypatch):
+    """The untrained policy falls within a second: let the run go on with the robot on the ground,
+    so that the pipeline's timing can be watched over seconds."""
+    orig = DeploySim._env_config
+
+    def patched(self):
+        c = orig(self)
+        return replace(
+            c, termination=replace(c.termination, max_roll=9.0, max_pitch=9.0, contact_bodies=False)
+        )
+
+    monkeypatch.setattr(DeploySim, "_env_config", patched)
+
+
+def test_json_report(vision_onnx, monkeypatch, capsys):
+    code, out, err = run_cli(
+        monkeypatch, capsys, str(vision_onnx), "--terrain", "stairs", "--duration", "2", "--json"
+    )
+    assert code == 0, err
+    rep = json.loads(out)  # exactly one JSON object on stdout
+    for k in REPORT_KEYS:
+        assert k in rep, k
+    assert isinstance(rep["survived"], bool) and rep["unstable"] is False
+    assert 0.0 < rep["duration_s"] <= 2.0 and rep["policy_steps"] == round(rep["duration_s"] * 50)
+    assert rep["survived"] == (rep["ended"] == "duration")
+    assert 0.0 < rep["policy_ms_p50"] <= rep["policy_ms_p99"] and rep["realtime_factor"] > 0
+    assert rep["vel_tracking_error"] >= 0 and rep["com_error_m"] >= 0
+    assert (rep["physics_hz"], rep["policy_hz"], rep["depth_hz"]) == (200.0, 50.0, 30.0)
+    assert rep["terrain_type"] in ("stairs_up", "stairs_down") and rep["depth_thread_separate"] is True
+
+
+@pytest.mark.parametrize("latency_ms", [0.0, 50.0])
+def test_depth_thread_runs_at_its_own_rate(vision_onnx, no_falls, latency_ms):
+    pol = load_policy(vision_onnx)
+    sim = DeploySim(pol, DeployConfig(terrain="stairs", duration_s=3.0, depth_latency_ms=latency_ms))
+    try:
+        rep = sim.run()
+        caps = np.array(sim.depth.capture_times)
+        ids = sim.depth.render_thread_ids
+    finally:
+        sim.close()
+    assert rep["ended"] == "duration" and rep["duration_s"] == 3.0
+    # 30 Hz of simulation time, captured at the 50 Hz step boundaries (20 or 40 ms apart)
+    assert len(caps) == 90 and set(np.round(np.diff(caps), 6)) <= {0.02, 0.04}
+    assert abs(rep["depth_rate_hz"] - 30.0) < 0.5
+    assert len(caps) - 1 <= rep["depth_frames"] + rep["depth_dropped"] <= len(caps)
+    assert rep["depth_frames"] >= 0.9 * len(caps)
+    # rendered in another thread, which the control loop mostly did not wait for
+    assert ids and threading.get_ident() not in ids
+    assert rep["depth_hidden_share"] > 0.1
+    # a frame is never used at its own capture step (it is still rendering), nor before the
+    # added latency has passed; its age stays bounded
+    ages = np.array(sim.frame_ages_ms[5:])
+    assert ages.min() >= 20.0 * (np.floor(latency_ms / 20.0) + 1.0) - 1e-6
+    assert ages.max() <= 40.0 + latency_ms + 40.0 + 1e-6
+    assert rep["depth_age_ms_p99"] <= max(sim.frame_ages_ms) + 1e-6
+
+
+def test_serialised_numba_fallback(vision_onnx, no_falls, monkeypatch):
+    """Where numba's threading layer is not thread-safe (workqueue), renders and env steps take turns."""
+    import tron1cli.deploy.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "_numba_thread_safe", lambda: False)
+    sim = DeploySim(load_policy(vision_onnx), DeployConfig(terrain="rough", duration_s=1.0))
+    try:
+        rep = sim.run()
+    finally:
+        sim.close()
+    assert sim.numba_lock is not None and rep["ended"] == "duration" and rep["depth_frames"] >= 28
+
+
+def test_gait_clock_and_command_schedule(tiny_ckpt, tmp_path, no_falls):
+    """A blind checkpoint (.pt): the env advances the gait clock at 50 Hz; commands follow the file."""
+    f = tmp_path / "cmds.csv"
+    f.write_text("t_s,vx,vy,yaw\n# walk, then turn\n0,0.3,0,0\n0.5,0.6,0.1,0.4\n")
+    sched = CommandSchedule.from_file(f)
+    pol = load_policy(tiny_ckpt)
+    sim = DeploySim(pol, DeployConfig(schedule=sched, duration_s=1.0))
+    seen = []
+    try:
+        rep = sim.run(lambda k, total: seen.append((k, sim.env.commands.value[0].copy())))
+        freq, phase = sim.env.commands.gait_freq[0], sim.env.commands.gait_phase[0]
+    finally:
+        sim.close()
+    assert sim.depth is None and rep["depth_frames"] is None and rep["policy_kind"] == "checkpoint"
+    steps = rep["policy_steps"]
+    assert steps == 50 and freq == rep["gait_freq_hz"] == 2.0
+    expected = (steps * 0.02 * freq) % 1.0
+    assert min(abs(phase - expected), 1.0 - abs(phase - expected)) < 1e-9
+    cmds = dict(seen)
+    np.testing.assert_allclose(cmds[10], [0.3, 0.0, 0.0])
+    np.testing.assert_allclose(cmds[25], [0.6, 0.1, 0.4])  # changed at t = 0.5 s
+    np.testing.assert_allclose(cmds[50], [0.6, 0.1, 0.4])
+
+
+def test_realtime_paces_to_the_wall_clock(tiny_ckpt, no_falls):
+    sim = DeploySim(load_policy(tiny_ckpt), DeployConfig(duration_s=0.5, realtime=True))
+    try:
+        rep = sim.run()
+    finally:
+        sim.close()
+    assert rep["paced"] and 0.8 < rep["realtime_factor"] <= 1.02
+
+
+def test_unstable_simulation_is_reported(tiny_ckpt, monkeypatch, capsys):
+    orig = DeploySim._env_config
+
+    def patched(self):  # any joint speed counts as a runaway: the first step is "unstable"
+        c = orig(self)
+        return replace(c, termination=replace(c.termination, max_qvel=1e-6))
+
+    monkeypatch.setattr(DeploySim, "_env_config", patched)
+    code, out, err = run_cli(monkeypatch, capsys, str(tiny_ckpt), "--json")
+    rep = json.loads(out)
+    assert code == 0 and rep["unstable"] is True and rep["survived"] is False and rep["ended"] == "unstable"
+    assert "unstable" in err
+
+
+def _foreign_onnx(path):
+    from onnx import TensorProto, helper
+
+    node = helper.make_node("Identity", ["x"], ["y"])
+    g = helper.make_graph(
+        [node],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )
+    onnx.save(helper.make_model(g), str(path))
+    return path
+
+
+def _tampered_layout(src, path):
+    model = onnx.load(str(src))
+    for p in model.metadata_props:
+        if p.key == "obs_layout":
+            layout = json.loads(p.value)
+            layout["history_len"] = layout["history_len"] + 1
+            p.value = json.dumps(layout)
+    onnx.save(model, str(path))
+    return path
+
+
+@pytest.mark.parametrize(
+    "make,text",
+    [
+        (lambda d, v: d / "missing.onnx", "policy not found"),
+        (lambda d, v: _foreign_onnx(d / "foreign.onnx"), "not a tron1 policy"),
+        (lambda d, v: _tampered_layout(v, d / "tampered.onnx"), "observation layout differs"),
+    ],
+)
+def test_bad_policy_file_exits_1_with_one_line(make, text, vision_onnx, tmp_path, monkeypatch, capsys):
+    code, out, err = run_cli(monkeypatch, capsys, str(make(tmp_path, vision_onnx)), "--duration", "0.1")
+    assert code == 1 and out == ""
+    assert err.startswith("error: ") and text in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--push", "huge"], "unknown --push"),
+        (["--terrain", "moon"], "unknown terrain"),
+        (["--cmd", "1,2"], "three numbers"),
+        (["--level", "99"], "outside 0..9"),
+        (["--physics-hz", "333"], "whole multiple"),
+        (["--duration", "0"], "--duration"),
+    ],
+)
+def test_bad_option_exits_2(args, text, tiny_ckpt, monkeypatch, capsys):
+    code, out, err = run_cli(monkeypatch, capsys, str(tiny_ckpt), *args)
+    assert code == 2 and text in err and len(err.strip().splitlines()) == 1
+
+
+def test_viewer_without_display_is_one_line(tiny_ckpt, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    code, out, err = run_cli(monkeypatch, capsys, str(tiny_ckpt), "--viewer")
+    assert code == 1 and "needs a display" in err and len(err.strip().splitlines()) == 1
+
+
+def test_schedule_parsing(tmp_path):
+    assert parse_cmd("0.5, 0,-0.2") == (0.5, 0.0, -0.2)
+    with pytest.raises(ValueError):
+        parse_cmd("fast")
+    s = CommandSchedule.constant((0.4, 0.0, 0.1))
+    np.testing.assert_allclose(s.at(0.0), [0.4, 0.0, 0.1])
+    f = tmp_path / "c.csv"
+    f.write_text("1.0,0.5,0,0\n3.0,0,0,0.5\n")
+    s = CommandSchedule.from_file(f)
+    np.testing.assert_allclose(s.at(0.5), [0, 0, 0])  # before the first line: stand
+    np.testing.assert_allclose(s.at(1.0), [0.5, 0, 0])
+    np.testing.assert_allclose(s.at(9.0), [0, 0, 0.5])
+    for bad in ("0,1,2\n", "1,0,0,0\n0.5,0,0,0\n", "0,a,0,0\n1,x,0,0\n", "# nothing\n"):
+        f.write_text(bad)
+        with pytest.raises(ValueError, match="c.csv"):
+            CommandSchedule.from_file(f)
+
+
+def test_deploy_sim_rerun_recording_reads_back(vision_onnx, no_falls, tmp_path, monkeypatch, capsys):
+    """Issue 8's check: a short deploy-sim run saved to .rrd and read back with rerun's reader."""
+    from tron1cli.viz.rerun_stream import PATHS, read_rrd
+
+    rrd = tmp_path / "deploy.rrd"
+    code, out, err = run_cli(
+        monkeypatch,
+        capsys,
+        str(vision_onnx),
+        "--terrain",
+        "stairs",
+        "--level",
+        "3",
+        "--duration",
+        "1",
+        "--rerun",
+        f"save={rrd}",
+        "--json",
+    )
+    assert code == 0, err
+    d = read_rrd(rrd)
+    steps = json.loads(out)["policy_steps"]
+    for path in (PATHS.com, PATHS.desired_com, PATHS.zmp):
+        pts = np.concatenate(
+            [np.asarray(r["Points3D:positions"], dtype=float).reshape(-1, 3) for r in d[path]]
+        )
+        assert pts.shape == (steps, 3) and np.all(np.isfinite(pts))
+    com = np.concatenate(
+        [np.asarray(r["Points3D:positions"], dtype=float).reshape(-1, 3) for r in d[PATHS.com]]
+    )
+    assert np.all((com[:, 2] > 0.0) & (com[:, 2] < 1.2))
+    depth_rows = d[PATHS.depth]
+    assert 20 <= len(depth_rows) <= 31  # the frames the policy used, 30 Hz over 1 s
+    fmt = depth_rows[-1]["DepthImage:format"][0]
+    img = np.frombuffer(bytes(depth_rows[-1]["DepthImage:buffer"][0]), dtype=np.float32)
+    assert (fmt["height"], fmt["width"]) == (60, 80) and np.all((img >= 0) & (img <= 3.0 + 1e-6))
+    for which in ("true", "reconstructed"):
+        rows = d[PATHS.hm_points(which)]
+        assert len(rows) == steps
+        pts = np.asarray(rows[-1]["Points3D:positions"], dtype=float).reshape(-1, 3)
+        assert pts.shape == (441, 3) and np.all(np.isfinite(pts))

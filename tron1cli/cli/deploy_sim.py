@@ -1,0 +1,193 @@
+"""``tron1 deploy-sim``: an exported policy in MuJoCo, run the way the robot runs it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
+
+
+def _f(x: float | None, fmt: str = ".3f", unit: str = "") -> str:
+    return "-" if x is None else f"{x:{fmt}}{unit}"
+
+
+def deploy_sim(
+    policy: Path = typer.Argument(
+        ..., help="Exported policy (.onnx), or a training checkpoint (.pt).", show_default=False
+    ),
+    terrain: str = typer.Option(
+        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
+    ),
+    level: int = typer.Option(0, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
+    cmd: str | None = typer.Option(
+        None, "--cmd", help="Constant command vx,vy,yaw (m/s, m/s, rad/s) [default: 0.5,0,0]."
+    ),
+    cmd_file: Path | None = typer.Option(
+        None,
+        "--cmd-file",
+        exists=True,
+        dir_okay=False,
+        help="Timed commands: CSV lines t_s,vx,vy,yaw, each holding until the next.",
+    ),
+    push: str = typer.Option("none", "--push", help="Random pushes on the base: none, moderate or extreme."),
+    duration: float = typer.Option(10.0, "--duration", min=0.02, help="Simulated seconds."),
+    realtime: bool = typer.Option(
+        False, "--realtime", help="Pace the loop to the wall clock [default: as fast as possible]."
+    ),
+    seed: int = typer.Option(0, "--seed", help="Seed of the env, the terrain and the sensor noise."),
+    noise: bool = typer.Option(True, "--noise/--no-noise", help="Proprioceptive and depth sensor noise."),
+    depth_latency_ms: float = typer.Option(
+        0.0, "--depth-latency-ms", min=0.0, help="Latency added to every depth frame (ms)."
+    ),
+    physics_hz: float | None = typer.Option(
+        None,
+        "--physics-hz",
+        min=1.0,
+        help="Physics and PD rate, a multiple of the policy's 50 Hz, e.g. 1000 [default: the policy's own].",
+    ),
+    randomize: bool = typer.Option(
+        False, "--randomize", help="The policy's training randomisation instead of the nominal robot."
+    ),
+    viewer: bool = typer.Option(
+        False, "--viewer", help="Show the MuJoCo viewer (needs a display; paces to the wall clock)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
+    rerun: str = typer.Option(
+        "off", "--rerun", help="Stream the run to rerun: spawn, save=FILE.rrd, connect[=URL] or off."
+    ),
+) -> None:
+    """Run POLICY in MuJoCo: physics with PD at the physics rate, the policy at 50 Hz, the depth camera
+    rendered in its own thread at 30 Hz with the newest ready frame handed to the policy.
+
+    Reports survival, velocity tracking, LIPM CoM/ZMP figures, policy inference time, depth frame
+    age and render time, and the real-time factor (simulated seconds per wall second).
+    """
+    from tron1cli.deploy.pipeline import PUSHES, DeployConfig, DeploySim, check_display
+    from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
+    from tron1cli.env.terrain import resolve_terrain
+    from tron1cli.policy.runtime import load_policy
+
+    try:
+        resolve_terrain(terrain)
+        if push not in PUSHES:
+            raise ValueError(f"unknown --push '{push}'; choose from {', '.join(PUSHES)}")
+        if cmd is not None and cmd_file is not None:
+            raise ValueError("give --cmd or --cmd-file, not both")
+        if cmd_file is not None:
+            schedule = CommandSchedule.from_file(cmd_file)
+        else:
+            schedule = CommandSchedule.constant(parse_cmd(cmd if cmd is not None else "0.5,0,0"))
+        target = parse_rerun_option(rerun)
+    except ValueError as e:
+        fail(str(e), 2)
+    if viewer:
+        check_display()
+    cfg = DeployConfig(
+        terrain=terrain,
+        level=level,
+        schedule=schedule,
+        push=push,
+        duration_s=duration,
+        realtime=realtime,
+        seed=seed,
+        noise=noise,
+        depth_latency_ms=depth_latency_ms,
+        physics_hz=physics_hz,
+        randomize=randomize,
+        viewer=viewer,
+    )
+    pol = load_policy(policy)
+    stream = open_stream(target, recording_name=f"tron1 deploy-sim {policy.name}")
+    with err.status("setting up the env and the depth thread..."):
+        sim = DeploySim(pol, cfg, stream)
+    progress = Progress(
+        TextColumn("[bold]deploy-sim"),
+        MofNCompleteColumn(),
+        BarColumn(bar_width=24),
+        TextColumn("policy steps"),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+        disable=as_json or not err.is_terminal,
+    )
+    try:
+        with progress:
+            task = progress.add_task("run", total=int(round(duration * 50)))
+
+            def on_step(k: int, total: int) -> None:
+                if k % 25 == 0 or k == total:
+                    progress.update(task, completed=k, total=total)
+
+            rep = sim.run(on_step)
+    finally:
+        sim.close()
+        if stream is not None:
+            stream.close()
+    if rep["unstable"]:
+        err.print(
+            "[bold yellow]warning:[/] the simulation went unstable (NaN, runaway velocity or a MuJoCo "
+            f"auto-reset) at t = {rep['duration_s']:.2f} s; the run stopped there",
+            highlight=False,
+        )
+    if as_json:
+        print_json(rep)
+        return
+    out.print(_table(rep))
+
+
+def _table(rep: dict) -> Table:
+    ended = {
+        "duration": "ran the full duration",
+        "fell": "fell",
+        "edge": "reached the edge of the terrain tile",
+        "unstable": "simulation went UNSTABLE",
+        "viewer closed": "viewer closed",
+    }[rep["ended"]]
+    t = Table(
+        title=f"tron1 deploy-sim: {Path(rep['policy']).name} ({rep['policy_kind']}), "
+        f"{rep['terrain_type']} level {rep['level']}, seed {rep['seed']}",
+        caption=f"physics {rep['physics_hz']:g} Hz, policy {rep['policy_hz']:g} Hz, depth "
+        + (f"{rep['depth_hz']:g} Hz in its own thread" if rep["depth_hz"] else "none (blind policy)")
+        + (", paced to the wall clock" if rep["paced"] else ", as fast as possible"),
+    )
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    rows = [
+        ("survived", f"{'yes' if rep['survived'] else 'NO'} ({ended})"),
+        ("simulated time (s)", f"{rep['duration_s']:.2f} of {rep['requested_duration_s']:g}"),
+        ("velocity tracking error |v_cmd,xy - v_xy| (m/s)", _f(rep["vel_tracking_error"])),
+        ("LIPM CoM error |p_hat - p_com| (m)", _f(rep["com_error_m"])),
+        ("CoM to ZMP |p_com - p_zmp| (m)", _f(rep["com_zmp_m"])),
+        ("CoM height error |z - z_c| (m)", _f(rep["com_height_error_m"])),
+        ("pushes", str(rep["pushes"])),
+        ("policy inference p50 / p99 (ms)", f"{_f(rep['policy_ms_p50'])} / {_f(rep['policy_ms_p99'])}"),
+        ("real-time factor (sim s / wall s)", _f(rep["realtime_factor"], ".2f")),
+    ]
+    if rep["reconstruction_error_cm"] is not None:
+        rows.insert(6, ("heightmap reconstruction error (cm)", _f(rep["reconstruction_error_cm"], ".2f")))
+    if rep["depth_frames"] is not None:
+        rows += [
+            (
+                "depth frames (rate, dropped)",
+                f"{rep['depth_frames']} ({_f(rep['depth_rate_hz'], '.1f')} Hz, "
+                f"{rep['depth_dropped']} dropped)",
+            ),
+            (
+                "depth frame age p50 / p99 (ms of sim time)",
+                f"{_f(rep['depth_age_ms_p50'], '.1f')} / {_f(rep['depth_age_ms_p99'], '.1f')}"
+                + (f" (+{rep['depth_latency_ms']:g} ms added)" if rep["depth_latency_ms"] else ""),
+            ),
+            (
+                "depth render p50 / p99 (ms)",
+                f"{_f(rep['depth_render_ms_p50'], '.2f')} / {_f(rep['depth_render_ms_p99'], '.2f')}",
+            ),
+            ("depth render hidden behind the control loop", _f(rep["depth_hidden_share"], ".0%")),
+        ]
+    for name, value in rows:
+        t.add_row(name, value)
+    return t

@@ -1,0 +1,1 @@
+"""Sim-to-sim deployment: an exported policy driven the way the robot's onboard computer runs it."""
