@@ -80,7 +80,7 @@ def test_json_report(vision_onnx, monkeypatch, capsys):
     assert rep["survived"] == (rep["ended"] == "duration")
     assert 0.0 < rep["policy_ms_p50"] <= rep["policy_ms_p99"] and rep["realtime_factor"] > 0
     assert rep["vel_tracking_error"] >= 0 and rep["com_error_m"] >= 0
-    assert (rep["physics_hz"], rep["policy_hz"], rep["depth_hz"]) == (200.0, 50.0, 30.0)
+    assert (rep["physics_hz"], rep["policy_hz"], rep["depth_hz"]) == (500.0, 50.0, 30.0)  # the robot's loop
     assert rep["terrain_type"] in ("stairs_up", "stairs_down") and rep["depth_thread_separate"] is True
 
 

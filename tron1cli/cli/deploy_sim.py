@@ -45,10 +45,10 @@ def deploy_sim(
         0.0, "--depth-latency-ms", min=0.0, help="Latency added to every depth frame (ms)."
     ),
     physics_hz: float | None = typer.Option(
-        None,
+        500.0,
         "--physics-hz",
         min=1.0,
-        help="Physics and PD rate, a multiple of the policy's 50 Hz, e.g. 1000 [default: the policy's own].",
+        help="Physics and PD rate, a multiple of the policy's 50 Hz: 500 (the robot's loop) or 1000.",
     ),
     randomize: bool = typer.Option(
         False, "--randomize", help="The policy's training randomisation instead of the nominal robot."
