@@ -35,8 +35,11 @@ def first_reached(
     return out
 
 
-def training_curves(runs: dict[str, Path], out_png: Path, group: str = "student") -> Path:
-    """Survival and velocity tracking error of ``group`` against wall-clock minutes, one line per run."""
+def training_curves(
+    runs: dict[str, Path], out_png: Path, group: str = "student", mark_minutes: float | None = None
+) -> Path:
+    """Survival and velocity tracking error of ``group`` against wall-clock minutes, one line per run
+    (``mark_minutes``: a vertical line, e.g. at a time budget)."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     for label, run_dir in runs.items():
         rows = read_metrics(run_dir)
@@ -48,6 +51,8 @@ def training_curves(runs: dict[str, Path], out_png: Path, group: str = "student"
     ax1.set(xlabel="wall-clock minutes", ylabel=f"{group} survival (share of episodes)", ylim=(0, 1.02))
     ax2.set(xlabel="wall-clock minutes", ylabel=f"{group} velocity tracking error (m/s)", ylim=(0, None))
     for ax in (ax1, ax2):
+        if mark_minutes is not None:
+            ax.axvline(mark_minutes, color="k", ls=":", lw=0.8)
         ax.grid(alpha=0.3)
         ax.legend()
     return _save(fig, out_png)

@@ -1,0 +1,31 @@
+"""PNG plots and the threshold times read off a run's metrics."""
+
+import json
+
+from tron1cli.viz.plots import first_reached, push_survival, success_by_speed, training_curves
+
+
+def _rows():
+    # (wall s, survival, tracking error): survival >= 0.9 first at 120 s, error <= 0.3 first at 180 s
+    pts = [(60, 0.5, 0.6), (120, 0.92, 0.4), (180, 0.85, 0.28), (240, 0.95, 0.25)]
+    return [{"wall_s": w, "student/survival": s, "student/vel_tracking_error": e} for w, s, e in pts]
+
+
+def test_first_reached_hand_computed():
+    assert first_reached(_rows()) == {"survival_min": 2.0, "tracking_min": 3.0, "both_min": 4.0}
+    assert first_reached(_rows()[:2])["tracking_min"] is None
+
+
+def test_plots_write_pngs(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in _rows()))
+    pngs = [
+        training_curves({"a": run}, tmp_path / "curves.png", mark_minutes=3.0),
+        success_by_speed(
+            {"a": {0.5: {"mean": 0.9, "std": 0.1}, 1.0: {"mean": 0.5, "std": None}}}, tmp_path / "s.png"
+        ),
+        push_survival({"a": {"none": 1.0, "+Fx": 0.5}}, tmp_path / "p.png"),
+    ]
+    for p in pngs:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
