@@ -50,7 +50,13 @@ class RobotState:
 
 
 def read_state(phys: BatchedPhysics, ids: np.ndarray | None = None) -> RobotState:
-    """Read a :class:`RobotState` for all envs, or for rows ``ids`` only."""
+    """Read a :class:`RobotState` for all envs, or for rows ``ids`` only.
+
+    Base pose and velocities, gravity and joints come from the state after the step; the MuJoCo
+    sensor figures (CoM, feet, contact forces, joint torques) are those MuJoCo computed before the
+    last substep's integration, i.e. one physics step (5 ms) older, as on a robot whose estimator
+    runs at the physics rate.
+    """
     rows = slice(None) if ids is None else ids
     st = phys.state[rows]
     qpos = st[:, phys.qpos_slice]

@@ -109,6 +109,17 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
     return env
 
 
+def frame_errors(
+    gravity_b: np.ndarray, ang_vel_b: np.ndarray, v_cmd_xy: np.ndarray, v_xy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-env errors (N,) of one step: orientation |g_b - (0,0,-1)|, angular velocity
+    (|w_x| + |w_y|) / 2 (rad/s), velocity tracking |v_cmd,xy - v_xy| (m/s); base-frame inputs."""
+    orient = np.linalg.norm(gravity_b - np.array([0.0, 0.0, -1.0]), axis=1)
+    ang = 0.5 * np.abs(ang_vel_b[:, :2]).sum(axis=1)
+    track = np.linalg.norm(v_cmd_xy - v_xy, axis=1)
+    return orient, ang, track
+
+
 @dataclass
 class EvalResult:
     """Figures of one batch: ``metrics`` (keys :data:`METRICS`), per-env ``fell`` mask, counts."""
@@ -154,11 +165,14 @@ def run_batch(
             crossed |= walking & res.time_out
             ok = walking & ~res.done
             s = env.state
-            g = s.projected_gravity[ok]
-            sums["orientation_error"] += float(np.linalg.norm(g - np.array([0.0, 0.0, -1.0]), axis=1).sum())
-            sums["angular_velocity_error"] += float(0.5 * np.abs(s.base_ang_vel_b[ok, :2]).sum())
-            v_err = env.commands.value[ok, :2] - s.base_lin_vel_b[ok, :2]
-            sums["velocity_tracking_error"] += float(np.linalg.norm(v_err, axis=1).sum())
+            errs = frame_errors(
+                s.projected_gravity[ok],
+                s.base_ang_vel_b[ok],
+                env.commands.value[ok, :2],
+                s.base_lin_vel_b[ok, :2],
+            )
+            for key, e in zip(METRICS[1:4], errs, strict=True):
+                sums[key] += float(e.sum())
             count += int(ok.sum())
             hidden[res.done] = 0.0
             obs = res.obs

@@ -71,6 +71,14 @@ def push_wrenches(types: np.ndarray, proto: PushProtocol, rng: np.random.Generat
     return w
 
 
+def heading_to_world(wrench_h: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Wrenches (N, 6) from each robot's heading frame (yaw (N,) rad) to the world frame."""
+    w = np.array(wrench_h, dtype=float, copy=True)
+    w[:, 0:2] = rotate_z(wrench_h[:, 0:2], yaw)
+    w[:, 3:5] = rotate_z(wrench_h[:, 3:5], yaw)
+    return w
+
+
 @dataclass
 class PushResult:
     survival: dict[str, float]  # per push type, 0-1
@@ -108,10 +116,7 @@ def run_push_test(
 
     def push(env: Tron1Env, t: int) -> None:
         if t == start:  # heading frame -> world, frozen for the push
-            yaw = yaw_of(env.state.base_quat)
-            world[:] = wrench_h
-            world[:, 0:2] = rotate_z(wrench_h[:, 0:2], yaw)
-            world[:, 3:5] = rotate_z(wrench_h[:, 3:5], yaw)
+            world[:] = heading_to_world(wrench_h, yaw_of(env.state.base_quat))
         if start <= t < stop:
             env.external_wrench[:] = world
         elif t == stop:
