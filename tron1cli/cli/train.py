@@ -75,7 +75,9 @@ def train(
         help="Stream one student episode every --rerun-every iterations: spawn, save=FILE.rrd, "
         "connect[=URL] or off.",
     ),
-    rerun_every: int = typer.Option(50, "--rerun-every", min=1, help="Iterations between streamed episodes."),
+    rerun_every: int = typer.Option(
+        200, "--rerun-every", min=1, help="Iterations between streamed episodes."
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",

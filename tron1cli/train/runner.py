@@ -162,7 +162,7 @@ class Trainer:
         on_iteration: Callable[[dict], None] | None = None,
         max_minutes: float | None = None,
         stream=None,
-        stream_every: int = 50,
+        stream_every: int = 200,
     ) -> dict:
         """Train until ``cfg.iterations`` (or ``max_minutes`` of wall clock); returns the last metrics.
 
