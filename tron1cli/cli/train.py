@@ -182,7 +182,7 @@ def train(
     progress = Progress(
         TextColumn("[bold]iter"),
         MofNCompleteColumn(),
-        BarColumn(bar_width=20),
+        BarColumn(bar_width=8),
         TextColumn("{task.fields[figures]}"),
         TimeElapsedColumn(),
         console=err,
@@ -191,14 +191,12 @@ def train(
 
     def show(m: dict) -> None:
         reward = sum(v for k, v in m.items() if k.startswith("step_reward/"))
-        figs = (
-            f"{m['steps_per_s']:,.0f} steps/s | reward {_fmt(reward)}"
-            f" | ep {_fmt(m.get('student/episode_length_s'))} s"
-            f" | survival T {_fmt(m.get('teacher/survival'))}"
-            f" S {_fmt(m.get('student/survival'))} | vel err S {_fmt(m.get('student/vel_tracking_error'))}"
+        figs = (  # student figures; compact enough for an 80-column terminal
+            f"{m['steps_per_s']:,.0f}/s rew {_fmt(reward)} ep {_fmt(m.get('student/episode_length_s'))}s"
+            f" surv {_fmt(m.get('student/survival'))} err {_fmt(m.get('student/vel_tracking_error'))}"
         )
         if "terrain/mean_level" in m:
-            figs += f" | level {_fmt(m['terrain/mean_level'])}"
+            figs += f" lvl {_fmt(m['terrain/mean_level'])}"
         progress.update(task, completed=m["iteration"], figures=figs)
 
     def _terminate(signum, frame):  # `kill` (SIGTERM) saves like Ctrl-C does
