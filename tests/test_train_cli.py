@@ -176,3 +176,16 @@ def test_train_streams_an_episode_to_rerun(tmp_path):
     assert "world/lipm/com" in data and "reward_group/stable" in data
     r = tron1("train", *SMALL, "--run-dir", str(tmp_path / "x"), "--rerun", "nowhere")
     assert r.returncode == 2 and "unknown target" in r.stderr
+
+
+def test_default_critic_weights_follow_the_groups(tmp_path):
+    r = tron1("train", *SMALL, "--iterations", "1", "--run-dir", str(tmp_path / "a"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["learner"]["critic_weights"] == {
+        "stable": 0.5
+    }
+    r = tron1(
+        "train", *SMALL, "--iterations", "1", "--ablation", "single-critic", "--run-dir", str(tmp_path / "b")
+    )
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["learner"]["critic_weights"] == {}
