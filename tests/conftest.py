@@ -1,11 +1,41 @@
-"""Shared fixtures: tiny trained checkpoints (one PPO iteration) to drive the policy tools."""
+"""Shared fixtures and helpers: tiny trained checkpoints (one PPO iteration), the CLI in a
+subprocess, a foreign ONNX file."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
+
+
+def tron1(*args: str) -> subprocess.CompletedProcess:
+    """Run the ``tron1`` CLI in a subprocess (one torch thread), capturing its output."""
+    return subprocess.run(
+        [sys.executable, "-m", "tron1cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+    )
+
+
+def write_foreign_onnx(path: Path) -> Path:
+    """A valid ONNX model (one Identity node) that is not a tron1 policy."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    node = helper.make_node("Identity", ["x"], ["y"])
+    g = helper.make_graph(
+        [node],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )
+    onnx.save(helper.make_model(g), str(path))
+    return path
 
 
 def make_tiny_checkpoint(run_dir: Path, perception: bool = False, gait: bool = True) -> Path:

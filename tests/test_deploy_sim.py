@@ -11,6 +11,7 @@ import numpy as np
 import onnx
 import pytest
 import typer
+from conftest import write_foreign_onnx
 
 import tron1cli.cli.main as cli_main
 from tron1cli.cli.deploy_sim import deploy_sim
@@ -171,20 +172,6 @@ def test_unstable_simulation_is_reported(tiny_ckpt, monkeypatch, capsys):
     assert "unstable" in err
 
 
-def _foreign_onnx(path):
-    from onnx import TensorProto, helper
-
-    node = helper.make_node("Identity", ["x"], ["y"])
-    g = helper.make_graph(
-        [node],
-        "g",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
-        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
-    )
-    onnx.save(helper.make_model(g), str(path))
-    return path
-
-
 def _tampered_layout(src, path):
     model = onnx.load(str(src))
     for p in model.metadata_props:
@@ -200,7 +187,7 @@ def _tampered_layout(src, path):
     "make,text",
     [
         (lambda d, v: d / "missing.onnx", "policy not found"),
-        (lambda d, v: _foreign_onnx(d / "foreign.onnx"), "not a tron1 policy"),
+        (lambda d, v: write_foreign_onnx(d / "foreign.onnx"), "not a tron1 policy"),
         (lambda d, v: _tampered_layout(v, d / "tampered.onnx"), "observation layout differs"),
     ],
 )

@@ -3,26 +3,15 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from conftest import tron1
 
 from tron1cli.cli.evaluate import parse_groups
 from tron1cli.evaluation.protocol import EvalSpec, aggregate, resolve_eval_terrains, run_batch
 from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, push_wrenches
 from tron1cli.policy.runtime import load_policy
-
-
-def tron1(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tron1cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
-    )
 
 
 def test_parse_groups(tmp_path):

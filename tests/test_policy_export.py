@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import onnx
 import pytest
+from conftest import write_foreign_onnx
 
 from tron1cli.config import GaitConfig
 from tron1cli.env.core import Tron1Env
@@ -62,18 +63,7 @@ def test_bad_policy_files(tmp_path):
     junk.write_bytes(b"\x00garbage" * 10)
     with pytest.raises(Tron1Error):
         load_policy(junk)
-    # a valid ONNX model that is not ours
-    from onnx import TensorProto, helper
-
-    node = helper.make_node("Identity", ["x"], ["y"])
-    g = helper.make_graph(
-        [node],
-        "g",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
-        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
-    )
-    foreign = tmp_path / "foreign.onnx"
-    onnx.save(helper.make_model(g), str(foreign))
+    foreign = write_foreign_onnx(tmp_path / "foreign.onnx")  # a valid ONNX model that is not ours
     with pytest.raises(Tron1Error, match="not a tron1 policy"):
         load_policy(foreign)
     bad_ckpt = tmp_path / "bad.pt"

@@ -6,21 +6,12 @@ import sys
 
 import pytest
 import torch
+from conftest import tron1
 
 from tron1cli.errors import Tron1Error
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
 
 SMALL = ["--envs", "16", "--steps-per-env", "8", "--hidden", "32,32"]
-
-
-def tron1(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tron1cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
-    )
 
 
 def metrics(run_dir):
