@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
-from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.config import EnvConfig, GaitConfig, NoiseConfig
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.curriculum import TerrainCurriculum
+from tron1cli.env.math3d import yaw_of
 from tron1cli.env.randomization import PushConfig, RandomizationConfig, damping_ratio_for_restitution
+from tron1cli.env.sensors import render_depth
 from tron1cli.env.terrain import TERRAIN_GROUPS, TerrainBank
 
 FULL = dict(perception=True, randomization=RandomizationConfig.table_iii(), pushes=PushConfig.moderate())
@@ -132,6 +134,37 @@ def test_curriculum_moves_up_and_down():
     assert cur.level.tolist() == [6, 4, 5] and sorted(changed.tolist()) == [0, 1]
     moved = np.array([0, 1])
     assert (bank.level[cur.tile[moved]] == cur.level[moved]).all()
+
+
+def test_held_depth_frames_and_scans_after_resets():
+    """Observations keep their depth frames (renders replace the array, never write into it); a
+    student that just reset holds a frame of its new pose; the scan patched after resets equals a
+    full scan of the new state."""
+    env = make("stairs", n=8, max_init_level=5, noise=NoiseConfig(enabled=False))
+    first = env.reset()
+    kept = first["depth"].copy()
+    rng = np.random.default_rng(1)
+    resets = 0
+    for k in range(12):
+        if k % 4 == 1:
+            env.episode_step[[2, 6]] = env.max_episode_steps - 1  # a teacher and a student time out
+        res = env.step(rng.normal(0, 0.3, (8, 6)))
+        resets += int(res.done.sum())
+        s = env.state
+        scan = env.height_scan.scan(
+            env.bank.heights, env.curriculum.tile, s.base_pos, yaw_of(s.base_quat), env.bank.res
+        )
+        np.testing.assert_array_equal(res.obs["heightmap"], scan)
+        if res.done[6]:
+            pos, rot = env.camera_pose(np.array([6]))
+            fresh = render_depth(
+                env.bank.heights, env.curriculum.tile[[6]], pos, rot, env.camera, env.bank.res
+            )
+            np.testing.assert_array_equal(res.obs["depth"][6], fresh[0])
+    assert resets >= 6
+    np.testing.assert_array_equal(first["depth"], kept)
+    assert not np.array_equal(env.obs["depth"][4:], kept[4:])
+    env.close()
 
 
 def test_same_seed_same_terrain_and_trajectory():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -248,6 +249,29 @@ def test_depth_on_flat_ground_matches_analytic(height, pitch_deg, yaw):
     assert np.all(got[z < cam.near] == cam.near)
 
 
+def test_depth_flat_blocks_solved_exactly_under_a_high_tile_top():
+    """A 3 m tower in a far corner lifts the tile's top above the camera, so every ray marches
+    the max-height blocks and ends in a flat block (the shortcut): still the analytic depth."""
+    cam = DepthCamera(width=40, height=30)
+    bank = np.full((1, R, R), 0.12, dtype=np.float32)
+    bank[0, :6, :6] = 3.0
+    maps = depth_max_maps(bank)
+    assert maps.top[0] == 3.0 and maps.fine_min[0, 10, 10] == maps.fine[0, 10, 10] == np.float32(0.12)
+    rot = camera_rot(math.radians(50.0), 0.7)
+    pos = np.array([0.3, 0.2, 0.82])
+    got = render_depth(bank, np.zeros(1, dtype=np.int64), pos[None], rot[None], cam, RES, max_maps=maps)[0]
+    d = cam.pixel_rays() @ rot.T  # unit z-depth per unit t
+    want = (pos[2] - np.float32(0.12)) / -d[..., 2]
+    assert np.all(want < cam.far) and np.max(np.abs(got - want)) < 1e-5
+    # a 1 cm bump in the middle of every 16 x 16 block: the large blocks are no longer flat,
+    # most 4 x 4 ones still are; compare where the hit is 2 cells clear of any bump
+    bank[0, 8::16, 8::16] = 0.13
+    got = render_depth(bank, np.zeros(1, dtype=np.int64), pos[None], rot[None], cam, RES)[0]
+    hit = (pos[None, None, :2] + want[..., None] * d[..., :2]) / RES + 0.5 * (R - 1)
+    clear = np.all(np.abs(hit % 16 - 8) > 2.0, axis=-1)  # cells from the nearest bump
+    assert clear.mean() > 0.4 and np.max(np.abs(got - want)[clear]) < 1e-5
+
+
 def reference_depth(bank, k, pos, rot, cam, step=0.001):
     """Brute-force march in 1 mm steps of z-depth (slow, for a small camera only)."""
     rays = cam.pixel_rays().reshape(-1, 3) @ rot.T
@@ -343,3 +367,17 @@ def test_depth_noise():
     assert resid.std() == pytest.approx(expected, rel=0.05)
     quiet = DepthCamera(noise_std_m=0.0, noise_range_frac=0.0, hole_prob=0.0)
     assert np.array_equal(add_depth_noise(depth, quiet, rng), depth)
+
+
+def test_depth_noise_same_whatever_the_thread_count():
+    cam = DepthCamera()
+    depth = np.random.default_rng(1).uniform(0.3, 3.0, (8, cam.height, cam.width)).astype(np.float32)
+    depth[0, :2] = 0.0  # no return stays no return
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = add_depth_noise(depth, cam, np.random.default_rng(9))
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(one, add_depth_noise(depth, cam, np.random.default_rng(9)))
+    assert np.all(one[0, :2] == 0.0)

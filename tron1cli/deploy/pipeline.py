@@ -279,7 +279,8 @@ class DeploySim:
                 recon_count += 1
             if self.stream is not None:
                 if depth is not None:
-                    env.depth[0] = frame.image  # the frame the policy just used (env rendering is off)
+                    # the frame the policy just used (the env renders none itself)
+                    env.set_depth(np.array([0]), frame.image[None])
                 self.stream.log_step(env, 0, k, t, extras={"h_hat": h_hat})
             with lock:
                 res = env.step(action)

@@ -86,7 +86,10 @@ class Tron1Env:
         self.edge = self.bank.half_extent - EDGE_MARGIN_M
         self.height_scan = sensors.HeightScan() if cfg.perception else None
         self.camera = sensors.DepthCamera() if cfg.perception else None
-        self.depth = np.zeros((self.n, 0, 0), dtype=np.float32)  # (N, H, W) held frames with perception
+        # (N, H, W) held frames with perception. Never written in place once handed out in an
+        # observation: a render replaces it (copy-on-write), so observations need no copy of it.
+        self.depth = np.zeros((self.n, 0, 0), dtype=np.float32)
+        self._depth_stale = np.zeros(self.n, dtype=bool)  # reset since the last render
         if self.camera is not None:
             self.depth = np.full(
                 (self.n, self.camera.height, self.camera.width), self.camera.far, dtype=np.float32
@@ -134,6 +137,7 @@ class Tron1Env:
             self.episode_step[:] = self.rng.integers(0, self.max_episode_steps, self.n)
         self.state = read_state(self.physics)
         self.lipm.reset(ids, self.state.foot_pos)
+        self._refresh_depth(scheduled=False)
         self.obs = self._observe(ids_reset=ids)
         return self.obs
 
@@ -165,7 +169,7 @@ class Tron1Env:
         self._steps_since_reset[ids] = 0
         self.commands.resample(ids, rng)
         self.commands.restart_clock(ids)
-        self._render_depth(ids[ids >= self.cfg.depth_from])
+        self._depth_stale[ids] = True  # rendered before the next observation (_refresh_depth)
 
     # -- stepping ---------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> StepResult:
@@ -216,6 +220,7 @@ class Tron1Env:
         done = term.done
         ids = np.flatnonzero(done)
         terminal_obs = self._observe(ids_reset=None, update_history=False) if len(ids) else {}
+        scan_before = terminal_obs.get("heightmap")
         episode = {"length_s": self.episode_step[ids] * self.policy_dt, "time_out": term.time_out[ids]}
         for name, sums in self.rewards.pop_episode_sums(ids).items():
             episode[f"reward/{name}"] = sums
@@ -229,10 +234,11 @@ class Tron1Env:
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
         self._depth_clock += self.policy_dt
-        if self.camera is not None and self._depth_clock >= 1.0 / self.cfg.depth_hz:
+        scheduled = self._depth_clock >= 1.0 / self.cfg.depth_hz
+        if scheduled:
             self._depth_clock -= 1.0 / self.cfg.depth_hz
-            self._render_depth(np.arange(self.cfg.depth_from, self.n))
-        self.obs = self._observe(ids_reset=ids)
+        self._refresh_depth(scheduled)
+        self.obs = self._observe(ids_reset=ids, scan_before=scan_before)
         return StepResult(
             obs=self.obs,
             terminal_obs=terminal_obs,
@@ -268,6 +274,14 @@ class Tron1Env:
         rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = c, -s_, s_, c
         return pos, rot_b @ self._cam_rot_b @ rx
 
+    def _refresh_depth(self, scheduled: bool) -> None:
+        """Render every student's camera when a 30 Hz frame is due (``scheduled``), else only the
+        students reset since the last render (their held frame belongs to the last episode)."""
+        first = self.cfg.depth_from
+        stale = first + np.flatnonzero(self._depth_stale[first:])
+        self._depth_stale[:] = False
+        self._render_depth(np.arange(first, self.n) if scheduled else stale)
+
     def _render_depth(self, ids: np.ndarray) -> None:
         """Render the depth camera of envs ``ids`` (the frame is then held until the next render).
 
@@ -288,7 +302,14 @@ class Tron1Env:
         )
         if self.cfg.noise.enabled:
             img = sensors.add_depth_noise(img, self.camera, self.rng)
-        self.depth[ids] = img
+        self.set_depth(ids, img)
+
+    def set_depth(self, ids: np.ndarray, images: np.ndarray) -> None:
+        """Hold ``images`` (k, H, W) as the depth frames of envs ``ids`` (copy-on-write: arrays
+        already handed out in observations keep their frames)."""
+        depth = self.depth.copy()
+        depth[ids] = images
+        self.depth = depth
 
     def _update_lipm(self) -> None:
         s = self.state
@@ -327,7 +348,11 @@ class Tron1Env:
         g = self.cfg.gait
         return desired_contact(leg_phases(self.commands.gait_phase, g.offset), g.stance, g.width)
 
-    def _observe(self, ids_reset: np.ndarray | None, update_history: bool = True) -> dict[str, np.ndarray]:
+    def _observe(
+        self, ids_reset: np.ndarray | None, update_history: bool = True, scan_before: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
+        """Observation groups of the current state. ``scan_before``: the height scan of this same
+        state before the envs ``ids_reset`` were reset, so that only those are scanned again."""
         values = self.term_values()
         lay = self.layout
         noise = self._noise if self.cfg.noise.enabled else None
@@ -345,10 +370,21 @@ class Tron1Env:
         obs = {"proprio": proprio, "history": history, "privileged": privileged}
         if self.height_scan is not None:
             s = self.state
-            obs["heightmap"] = self.height_scan.scan(
-                self.bank.heights, self.curriculum.tile, s.base_pos, yaw_of(s.base_quat), self.bank.res
-            )
-            obs["depth"] = self.depth.copy()
+            if scan_before is None or ids_reset is None:
+                obs["heightmap"] = self.height_scan.scan(
+                    self.bank.heights, self.curriculum.tile, s.base_pos, yaw_of(s.base_quat), self.bank.res
+                )
+            else:
+                obs["heightmap"] = scan_before.copy()
+                if len(ids_reset):
+                    obs["heightmap"][ids_reset] = self.height_scan.scan(
+                        self.bank.heights,
+                        self.curriculum.tile[ids_reset],
+                        s.base_pos[ids_reset],
+                        yaw_of(s.base_quat[ids_reset]),
+                        self.bank.res,
+                    )
+            obs["depth"] = self.depth  # shared, not copied: renders replace it (do not write to it)
         return obs
 
     def close(self) -> None:

@@ -31,7 +31,9 @@ Numba kernels compile on first use (a few seconds each, cached on disk afterward
 
 from __future__ import annotations
 
+import functools
 import math
+import statistics
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -198,48 +200,59 @@ class DepthCamera:
 
 
 @numba.njit(cache=True, parallel=True)
-def _max_maps_kernel(flat, nr, nc, tiles, fine, coarse):
-    """Max height over blocks of ``_BLOCK`` cells (samples on the block's edges included) into
-    ``fine``, and over groups of ``_BLOCK2 // _BLOCK`` fine blocks (the ranges nest) into ``coarse``."""
+def _max_maps_kernel(flat, nr, nc, tiles, fine, coarse, fine_min):
+    """Max (and min) height over blocks of ``_BLOCK`` cells (samples on the block's edges
+    included) into ``fine`` (``fine_min``), and max over groups of ``_BLOCK2 // _BLOCK`` fine
+    blocks (the ranges nest) into ``coarse``."""
     nby = fine.shape[1]
     nbx = fine.shape[2]
     f = _BLOCK2 // _BLOCK
     for u in numba.prange(tiles.shape[0]):
         base = tiles[u] * nr * nc
         rowmax = np.empty((nr, nbx), dtype=np.float32)
+        rowmin = np.empty((nr, nbx), dtype=np.float32)
         for i in range(nr):
             for bx in range(nbx):
                 j0 = bx * _BLOCK
-                m = flat[base + i * nc + j0]
+                hi = flat[base + i * nc + j0]
+                lo = hi
                 for j in range(j0 + 1, min(j0 + _BLOCK, nc - 1) + 1):
-                    m = max(m, flat[base + i * nc + j])
-                rowmax[i, bx] = m
+                    hi = max(hi, flat[base + i * nc + j])
+                    lo = min(lo, flat[base + i * nc + j])
+                rowmax[i, bx] = hi
+                rowmin[i, bx] = lo
         for by in range(nby):
             i0 = by * _BLOCK
             for bx in range(nbx):
-                m = rowmax[i0, bx]
+                hi = rowmax[i0, bx]
+                lo = rowmin[i0, bx]
                 for i in range(i0 + 1, min(i0 + _BLOCK, nr - 1) + 1):
-                    m = max(m, rowmax[i, bx])
-                fine[u, by, bx] = m
+                    hi = max(hi, rowmax[i, bx])
+                    lo = min(lo, rowmin[i, bx])
+                fine[u, by, bx] = hi
+                fine_min[u, by, bx] = lo
         for cy in range(coarse.shape[1]):
             for cx in range(coarse.shape[2]):
-                m = fine[u, cy * f, cx * f]
+                hi = fine[u, cy * f, cx * f]
                 for by in range(cy * f, min(cy * f + f, nby)):
                     for bx in range(cx * f, min(cx * f + f, nbx)):
-                        m = max(m, fine[u, by, bx])
-                coarse[u, cy, cx] = m
+                        hi = max(hi, fine[u, by, bx])
+                coarse[u, cy, cx] = hi
 
 
 class DepthMaxMaps(NamedTuple):
-    """Max-height maps that let the depth ray march skip terrain the ray passes above.
+    """Max- and min-height maps that let the depth ray march skip terrain the ray passes above
+    and solve flat blocks (min == max: a tread, a block top, flat ground) in one step.
 
-    fine: (T, nby, nbx) float32 over blocks of 4 x 4 cells; coarse: (T, ., .) over 16 x 16 cells;
-    top: (T,) float64 highest sample of each tile. Built by :func:`depth_max_maps`.
+    fine: (T, nby, nbx) float32 max over blocks of 4 x 4 cells; coarse: (T, ., .) max over 16 x 16
+    cells; top: (T,) float64 highest sample of each tile; fine_min: minima of the 4 x 4 blocks.
+    Built by :func:`depth_max_maps`.
     """
 
     fine: np.ndarray
     coarse: np.ndarray
     top: np.ndarray
+    fine_min: np.ndarray
 
 
 def _max_maps(h: np.ndarray, tiles: np.ndarray) -> DepthMaxMaps:
@@ -248,13 +261,15 @@ def _max_maps(h: np.ndarray, tiles: np.ndarray) -> DepthMaxMaps:
     f = _BLOCK2 // _BLOCK
     fine = np.empty((tiles.shape[0], nby, nbx), dtype=np.float32)
     coarse = np.empty((tiles.shape[0], -(-nby // f), -(-nbx // f)), dtype=np.float32)
-    _max_maps_kernel(h.reshape(-1), nr, nc, np.ascontiguousarray(tiles, dtype=np.int64), fine, coarse)
+    fine_min = np.empty_like(fine)
+    tiles = np.ascontiguousarray(tiles, dtype=np.int64)
+    _max_maps_kernel(h.reshape(-1), nr, nc, tiles, fine, coarse, fine_min)
     top = coarse.reshape(tiles.shape[0], -1).max(axis=1).astype(np.float64)
-    return DepthMaxMaps(fine, coarse, top)
+    return DepthMaxMaps(fine, coarse, top, fine_min)
 
 
 def depth_max_maps(bank_heights) -> DepthMaxMaps:
-    """Max-height maps of every tile of a bank, for ``render_depth(..., max_maps=...)``.
+    """Max- and min-height maps of every tile of a bank, for ``render_depth(..., max_maps=...)``.
 
     Build them once with the bank (about 30 us a tile) instead of per call for the tiles in use.
     """
@@ -321,16 +336,32 @@ def _ray_start(flat, base, nr, nc, top, fx0, fy0, oz, gx, gy, dz, near, far):
     return t, False
 
 
-@numba.njit(cache=True, nogil=True)
-def _march(flat, base, nr, nc, bmax, bmax2, u, t, fx0, fy0, oz, gx, gy, dz, near, far):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _flat_hit(t, tb, za, dz, hi, lo):
+    """Ray parameter at which a ray at height ``za`` at ``t`` and descending ``dz`` per unit t
+    meets a flat block (``lo == hi``) of height ``hi``; inf if the block is not flat or the ray
+    does not descend. The caller accepts it only within the block (<= ``tb``)."""
+    if lo != hi or not dz < 0.0:
+        return math.inf
+    return max(t + (za - hi) / -dz, t)
+
+
+# inlined into the render kernel: as a called function it cost a third of the render time
+@numba.njit(cache=True, nogil=True, inline="always")
+def _march(flat, base, nr, nc, bmax, bmax2, bmin, u, t, fx0, fy0, oz, gx, gy, dz, near, far):
     """z-depth of the first hit of the ray with the bilinear surface of one tile (see ``bilerp``).
 
     The ray is given in sample coordinates: column ``fx0 + gx t``, row ``fy0 + gy t``, height
     ``oz + dz t``, with ``t`` the z-depth, and starts at ``t`` above the surface. It walks the grid
     cell by cell (a 2-D DDA); in each cell the bilinear patch along the ray is a quadratic in t,
-    solved exactly. Blocks of ``_BLOCK2`` and of ``_BLOCK`` cells a side whose highest sample
-    (``bmax2``, ``bmax``) lies below the ray are crossed in one jump. (The block sides are module
-    constants so that numba compiles the divisions by them into shifts.)
+    solved exactly. A block of ``_BLOCK`` cells a side whose highest sample lies below the ray
+    is crossed in one jump, and then so is the block of ``_BLOCK2`` cells holding it if the ray
+    passes above that too (the large block is never looked at while the ray is inside a small
+    block it cannot pass: near the hit, where rays spend their steps); a flat small block (lowest
+    sample = highest) that the ray sinks into is solved in one step, the surface there being the
+    plane z = height. (The block sides are module constants so that numba compiles the divisions
+    by them into shifts.) ``bmax``, ``bmax2``, ``bmin``: the maps ``fine``, ``coarse`` and
+    ``fine_min`` of :class:`DepthMaxMaps`.
     """
     inf = math.inf
     sx = 1 if gx > 0.0 else -1
@@ -349,28 +380,28 @@ def _march(flat, base, nr, nc, bmax, bmax2, u, t, fx0, fy0, oz, gx, gy, dz, near
         te = min(tx, ty, far)
         za = oz + t * dz
         if 0 <= i < nr - 1 and 0 <= j < nc - 1:
-            b2 = (i // _BLOCK2) * nbx2 + j // _BLOCK2
-            if b2 != last_b2:
-                last_b2 = b2
-                tb = _block_exit(i, j, _BLOCK2, fx0, fy0, gx, gy, igx, igy, nr, nc, far)
-                if tb > t and min(za, oz + tb * dz) > bmax2[u, i // _BLOCK2, j // _BLOCK2]:
-                    if tb >= far:
-                        return far
-                    t = tb
-                    j, tx = _axis_enter(fx0, gx, igx, t, nc)
-                    i, ty = _axis_enter(fy0, gy, igy, t, nr)
-                    continue
             b = (i // _BLOCK) * nbx + j // _BLOCK
             if b != last_b:
                 last_b = b
                 tb = _block_exit(i, j, _BLOCK, fx0, fy0, gx, gy, igx, igy, nr, nc, far)
-                if tb > t and min(za, oz + tb * dz) > bmax[u, i // _BLOCK, j // _BLOCK]:
+                hi = bmax[u, i // _BLOCK, j // _BLOCK]
+                if tb > t and min(za, oz + tb * dz) > hi:
+                    # above this small block; the large one holding it can only be passed if so
+                    b2 = (i // _BLOCK2) * nbx2 + j // _BLOCK2
+                    if b2 != last_b2:
+                        last_b2 = b2
+                        tb2 = _block_exit(i, j, _BLOCK2, fx0, fy0, gx, gy, igx, igy, nr, nc, far)
+                        if min(za, oz + tb2 * dz) > bmax2[u, i // _BLOCK2, j // _BLOCK2]:
+                            tb = max(tb, tb2)
                     if tb >= far:
                         return far
                     t = tb
                     j, tx = _axis_enter(fx0, gx, igx, t, nc)
                     i, ty = _axis_enter(fy0, gy, igy, t, nr)
                     continue
+                th = _flat_hit(t, tb, za, dz, hi, bmin[u, i // _BLOCK, j // _BLOCK])
+                if th <= tb:
+                    return min(max(th, near), far)
         # the four samples of this cell (outside the tile the edge samples repeat)
         jl = min(max(j, 0), nc - 1)
         jr = min(max(j + 1, 0), nc - 1)
@@ -418,7 +449,7 @@ def _march(flat, base, nr, nc, bmax, bmax2, u, t, fx0, fy0, oz, gx, gy, dz, near
 
 @numba.njit(cache=True, parallel=True)
 def _render_kernel(
-    flat, nr, nc, tile_idx, uidx, bmax, bmax2, tops, cam_pos, cam_rot, rays, near, far, res, out
+    flat, nr, nc, tile_idx, uidx, bmax, bmax2, bmin, tops, cam_pos, cam_rot, rays, near, far, res, out
 ):
     n_env = tile_idx.shape[0]
     hgt = rays.shape[0]
@@ -453,7 +484,7 @@ def _render_kernel(
             dz = r20 * a + r21 * b - r22
             t, done = _ray_start(flat, base, nr, nc, top, fx0, fy0, oz, gx, gy, dz, near, far)
             if not done:
-                t = _march(flat, base, nr, nc, bmax, bmax2, u, t, fx0, fy0, oz, gx, gy, dz, near, far)
+                t = _march(flat, base, nr, nc, bmax, bmax2, bmin, u, t, fx0, fy0, oz, gx, gy, dz, near, far)
             out[n, v, c] = t
 
 
@@ -514,6 +545,7 @@ def render_depth(
         uidx,
         maps.fine,
         maps.coarse,
+        maps.fine_min,
         maps.top,
         pos,
         rot,
@@ -526,22 +558,66 @@ def render_depth(
     return out
 
 
+# Noise: a counter-based generator (a SplitMix64 hash of a per-call key and the pixel's index),
+# so that the noise is parallel, independent of the thread count and fixed by the caller's rng.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_NORMAL_BITS = 16
+
+
+@functools.cache
+def _normal_table() -> np.ndarray:
+    """Standard normal quantiles at (k + 0.5) / 2^16, k = 0 .. 2^16 - 1: a Gaussian quantised to
+    65,536 equally likely levels (tails at +/-4.3 sigma), indexed by 16 random bits."""
+    n = 1 << _NORMAL_BITS
+    inv = statistics.NormalDist().inv_cdf
+    return np.array([inv((k + 0.5) / n) for k in range(n)], dtype=np.float32)
+
+
+@numba.njit(cache=True, parallel=True)
+def _noise_kernel(d, out, key, std, frac, hole_below, near, far, table):
+    mask = np.uint64((1 << _NORMAL_BITS) - 1)
+    for i in numba.prange(d.shape[0]):
+        x = key + np.uint64(i) * _GOLDEN
+        x = (x ^ (x >> np.uint64(30))) * _MIX1
+        x = (x ^ (x >> np.uint64(27))) * _MIX2
+        x = x ^ (x >> np.uint64(31))
+        v = d[i]
+        if v <= 0.0 or (x >> np.uint64(32)) < hole_below:
+            out[i] = 0.0
+        else:
+            z = table[np.int64(x & mask)]
+            out[i] = min(max(v + z * (std + frac * v), near), far)
+
+
 def add_depth_noise(depth, cam: DepthCamera, rng: np.random.Generator) -> np.ndarray:
     """Noisy copy of ``depth`` (N, H, W): Gaussian noise, then clip to [near, far], then holes.
 
     Noise std = ``noise_std_m + noise_range_frac * depth``; each pixel becomes a hole (0, no return)
-    with probability ``hole_prob``; pixels already 0 stay 0. Deterministic given ``rng``'s state.
+    with probability ``hole_prob``; pixels already 0 stay 0. Compiled and parallel: every pixel
+    draws from a hash of its index and one 64-bit key taken from ``rng`` per call, so the result
+    is fixed by ``rng``'s state whatever the thread count. The Gaussian is quantised to 2^16
+    equally likely levels (tails cut at 4.3 sigma); hole probabilities resolve to 2^-32.
     """
-    d = np.asarray(depth, dtype=np.float32)
-    noisy = d + rng.standard_normal(d.shape, dtype=np.float32) * (
-        np.float32(cam.noise_std_m) + np.float32(cam.noise_range_frac) * d
+    d = np.ascontiguousarray(depth, dtype=np.float32)
+    if cam.noise_std_m == 0.0 and cam.noise_range_frac == 0.0 and cam.hole_prob == 0.0:
+        return d.copy()
+    out = np.empty_like(d)
+    key = np.uint64(rng.integers(0, 2**63, dtype=np.int64))
+    hole_below = np.uint64(min(round(cam.hole_prob * 2.0**32), 2**32))
+    _noise_kernel(
+        d.reshape(-1),
+        out.reshape(-1),
+        key,
+        np.float32(cam.noise_std_m),
+        np.float32(cam.noise_range_frac),
+        hole_below,
+        np.float32(cam.near),
+        np.float32(cam.far),
+        _normal_table(),
     )
-    np.clip(noisy, cam.near, cam.far, out=noisy)
-    holes = d <= 0.0
-    if cam.hole_prob > 0.0:
-        holes |= rng.random(d.shape, dtype=np.float32) < cam.hole_prob
-    noisy[holes] = 0.0
-    return noisy
+    return out
 
 
 def warmup() -> float:
@@ -552,5 +628,6 @@ def warmup() -> float:
     ground_height(bank, idx, np.zeros((1, 2)), 0.05)
     HeightScan(num_x=2, num_y=2).scan(bank, idx, np.array([[0.0, 0.0, 0.5]]), np.zeros(1), 0.05)
     cam = DepthCamera(width=4, height=3)
-    render_depth(bank, idx, np.array([[0.0, 0.0, 0.5]]), np.eye(3)[None], cam, 0.05)
+    img = render_depth(bank, idx, np.array([[0.0, 0.0, 0.5]]), np.eye(3)[None], cam, 0.05)
+    add_depth_noise(img, cam, np.random.default_rng(0))
     return time.perf_counter() - start
