@@ -27,7 +27,13 @@ def test_help_lists_only_working_commands():
 
 @pytest.mark.parametrize(
     "args",
-    [("bench", "--envs", "0"), ("bench", "--envs", "many"), ("bench", "--bogus"), ("no-such-command",)],
+    [
+        ("bench", "--envs", "0"),
+        ("bench", "--envs", "many"),
+        ("bench", "--rounds", "0"),
+        ("bench", "--bogus"),
+        ("no-such-command",),
+    ],
 )
 def test_usage_errors_are_one_line_exit_2(args):
     r = tron1(*args)
@@ -38,10 +44,12 @@ def test_usage_errors_are_one_line_exit_2(args):
 
 
 def test_bench_json():
-    r = tron1("bench", "--envs", "32", "--steps", "5", "--json")
+    r = tron1("bench", "--envs", "32", "--steps", "5", "--rounds", "3", "--json")
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout)
     for key in ("raw_steps_per_s", "env_steps_per_s", "ratio", "num_envs"):
         assert key in res
-    assert res["num_envs"] == 32
+    assert res["num_envs"] == 32 and res["rounds"] == 3
     assert res["raw_steps_per_s"] > 0 and 0 < res["ratio"] < 2
+    lo, hi = res["ratio_spread"]
+    assert lo <= res["ratio"] <= hi  # the ratio of medians lies within the per-round ratios

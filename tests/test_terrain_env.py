@@ -138,30 +138,35 @@ def test_curriculum_moves_up_and_down():
 
 def test_held_depth_frames_and_scans_after_resets():
     """Observations keep their depth frames (renders replace the array, never write into it); a
-    student that just reset holds a frame of its new pose; the scan patched after resets equals a
-    full scan of the new state."""
+    student that just reset holds a capture of its new pose, or an empty frame until the next
+    30 Hz capture; the scan patched after resets equals a full scan of the new state."""
     env = make("stairs", n=8, max_init_level=5, noise=NoiseConfig(enabled=False))
     first = env.reset()
     kept = first["depth"].copy()
     rng = np.random.default_rng(1)
-    resets = 0
-    for k in range(12):
-        if k % 4 == 1:
+    seen = {"captured": 0, "empty": 0}
+    for k in range(16):
+        if k % 3 == 1:
             env.episode_step[[2, 6]] = env.max_episode_steps - 1  # a teacher and a student time out
         res = env.step(rng.normal(0, 0.3, (8, 6)))
-        resets += int(res.done.sum())
         s = env.state
         scan = env.height_scan.scan(
             env.bank.heights, env.curriculum.tile, s.base_pos, yaw_of(s.base_quat), env.bank.res
         )
         np.testing.assert_array_equal(res.obs["heightmap"], scan)
-        if res.done[6]:
+        if res.time_out[6]:
             pos, rot = env.camera_pose(np.array([6]))
             fresh = render_depth(
                 env.bank.heights, env.curriculum.tile[[6]], pos, rot, env.camera, env.bank.res
             )
-            np.testing.assert_array_equal(res.obs["depth"][6], fresh[0])
-    assert resets >= 6
+            if np.array_equal(res.obs["depth"][6], fresh[0]):
+                seen["captured"] += 1
+            else:
+                assert np.all(res.obs["depth"][6] == 0.0)
+                seen["empty"] += 1
+                nxt = env.step(np.zeros((8, 6))).obs["depth"][6]  # captures are never two steps apart
+                assert not np.any(nxt == 0.0)
+    assert seen["captured"] >= 1 and seen["empty"] >= 1, seen
     np.testing.assert_array_equal(first["depth"], kept)
     assert not np.array_equal(env.obs["depth"][4:], kept[4:])
     env.close()

@@ -3,7 +3,8 @@
 The raw rate is measured on exactly the env's own workload: the bench records the state and the
 controls that every env step handed to ``mujoco.rollout`` and then replays them through rollout
 alone, so the ratio counts what the env core adds (observations, commands, terminations, resets)
-and nothing else. With perception the sensors are also timed on their own: the 441-point height
+and nothing else. Rounds of env, raw and perceptive-env timing alternate and each rate is the
+median of its rounds. With perception the sensors are also timed on their own: the 441-point height
 scan and the 80 x 60 depth render of every env, from the states the run ended in.
 """
 
@@ -63,51 +64,70 @@ def run_bench(
     terrain: str = "flat",
     depth: bool = False,
     level: int = 5,
+    rounds: int = 3,
 ) -> dict:
     """Measure raw and env policy-step rates (and, with ``depth``, the perceptive env and its
     sensors); returns a flat dict of figures.
 
     The perceptive env renders depth at 30 Hz for the student half of the envs and scans heights
     for every env, as in training; non-flat terrain starts every env on difficulty ``level``.
+    The measurements alternate over ``rounds`` rounds (env, raw replay, perceptive env) and each
+    rate is the median of its rounds, so that a slow spell of a shared machine does not land on
+    one side of a ratio only; ``*_spread`` gives (min, max) of each ratio over the rounds.
     """
+    if rounds < 1:
+        raise ValueError("rounds must be >= 1")
     rng = np.random.default_rng(seed)
     actions = rng.normal(0.0, 0.5, (warmup + steps, num_envs, 6))
     env = _env(num_envs, seed, nthread, terrain, level, depth=False)
+    denv = _env(num_envs, seed, nthread, terrain, level, depth=True) if depth else None
+    env_s, raw_s, depth_s = [], [], []
     try:
-        env_seconds, states, controls = _time_env(env, actions, warmup, record=True)
-        phys = env.physics
-        t0 = time.perf_counter()
-        for i in range(steps):
-            phys.state[:] = states[i]
-            phys.control[:] = controls[i]
-            phys.rollout()
-        raw_seconds = time.perf_counter() - t0
+        states = controls = None
+        for r in range(rounds):
+            seconds, rec_states, rec_controls = _time_env(env, actions, warmup, record=r == 0)
+            env_s.append(seconds)
+            if r == 0:
+                states, controls = rec_states, rec_controls
+            phys = env.physics
+            t0 = time.perf_counter()
+            for i in range(steps):
+                phys.state[:] = states[i]
+                phys.control[:] = controls[i]
+                phys.rollout()
+            raw_s.append(time.perf_counter() - t0)
+            if denv is not None:
+                depth_s.append(_time_env(denv, actions, warmup, record=False)[0])
+        rates = steps * num_envs / np.array([raw_s, env_s] + ([depth_s] if depth else []))
+        res = {
+            "num_envs": num_envs,
+            "steps": steps,
+            "rounds": rounds,
+            "decimation": env.cfg.decimation,
+            "nthread": nthread,
+            "terrain": terrain,
+            "raw_steps_per_s": float(np.median(rates[0])),
+            "env_steps_per_s": float(np.median(rates[1])),
+            "depth": depth,
+        }
+        res["ratio"] = res["env_steps_per_s"] / res["raw_steps_per_s"]
+        res["ratio_spread"] = _spread(rates[1] / rates[0])
+        if denv is not None:
+            res["env_depth_steps_per_s"] = float(np.median(rates[2]))
+            res["depth_ratio"] = res["env_depth_steps_per_s"] / res["raw_steps_per_s"]
+            res["depth_ratio_spread"] = _spread(rates[2] / rates[0])
+            res.update(_time_sensors(denv))
     finally:
         env.close()
-    raw = steps * num_envs / raw_seconds
-    full = steps * num_envs / env_seconds
-    res = {
-        "num_envs": num_envs,
-        "steps": steps,
-        "decimation": env.cfg.decimation,
-        "nthread": nthread,
-        "terrain": terrain,
-        "raw_steps_per_s": raw,
-        "env_steps_per_s": full,
-        "ratio": full / raw,
-        "depth": depth,
-    }
-    if depth:
-        denv = _env(num_envs, seed, nthread, terrain, level, depth=True)
-        try:
-            depth_seconds, _, _ = _time_env(denv, actions, warmup, record=False)
-            res["env_depth_steps_per_s"] = steps * num_envs / depth_seconds
-            res["depth_ratio"] = res["env_depth_steps_per_s"] / raw
-            res.update(_time_sensors(denv))
-        finally:
+        if denv is not None:
             denv.close()
     res.update({"cpu_count": os.cpu_count(), "machine": platform.machine()})
     return res
+
+
+def _spread(ratios: np.ndarray) -> list[float]:
+    """[min, max] of per-round ratios."""
+    return [float(ratios.min()), float(ratios.max())]
 
 
 def _time_sensors(env: Tron1Env, repeats: int = 5) -> dict:

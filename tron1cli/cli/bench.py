@@ -22,6 +22,9 @@ def bench(
         help="Also time the perceptive env: height scans for every env, 30 Hz depth for the student half.",
     ),
     level: int = typer.Option(5, "--level", min=0, help="Terrain difficulty level the envs start on."),
+    rounds: int = typer.Option(
+        3, "--rounds", min=1, help="Alternating timing rounds; each rate is the median of its rounds."
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Measure the env step rate and the raw mujoco.rollout rate of the same workload."""
@@ -32,22 +35,26 @@ def bench(
         resolve_terrain(terrain)
     except ValueError as e:
         fail(str(e), 2)
-    with err.status(f"stepping {envs} envs for {steps} policy steps..."):
-        res = run_bench(envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level)
+    with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
+        res = run_bench(
+            envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level, rounds=rounds
+        )
     if json_out:
         print_json(res)
         return
-    t = Table(title=f"tron1 bench: {envs} envs, {terrain}, {threads} threads")
+    t = Table(title=f"tron1 bench: {envs} envs, {terrain}, {threads} threads, median of {rounds} rounds")
     t.add_column("what")
     t.add_column("policy steps/s", justify="right")
     t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}")
     t.add_row(
         "env core step (physics, obs, commands, terminations, resets)", f"{res['env_steps_per_s']:,.0f}"
     )
-    t.add_row("ratio env / raw", f"{res['ratio']:.2f}")
+    lo, hi = res["ratio_spread"]
+    t.add_row("ratio env / raw", f"{res['ratio']:.2f} (rounds {lo:.2f}-{hi:.2f})")
     if depth:
         t.add_row("env core step with height scans and 30 Hz depth", f"{res['env_depth_steps_per_s']:,.0f}")
-        t.add_row("ratio env with depth / raw", f"{res['depth_ratio']:.2f}")
+        lo, hi = res["depth_ratio_spread"]
+        t.add_row("ratio env with depth / raw", f"{res['depth_ratio']:.2f} (rounds {lo:.2f}-{hi:.2f})")
         t.add_row("height scans (441 points), every env", f"{res['heightmaps_per_s']:,.0f} /s")
         t.add_row(
             "depth images (80 x 60), every env",

@@ -137,7 +137,8 @@ class Tron1Env:
             self.episode_step[:] = self.rng.integers(0, self.max_episode_steps, self.n)
         self.state = read_state(self.physics)
         self.lipm.reset(ids, self.state.foot_pos)
-        self._refresh_depth(scheduled=False)
+        self._depth_stale[:] = False
+        self._render_depth(np.arange(self.cfg.depth_from, self.n))  # a first capture for every student
         self.obs = self._observe(ids_reset=ids)
         return self.obs
 
@@ -169,7 +170,7 @@ class Tron1Env:
         self._steps_since_reset[ids] = 0
         self.commands.resample(ids, rng)
         self.commands.restart_clock(ids)
-        self._depth_stale[ids] = True  # rendered before the next observation (_refresh_depth)
+        self._depth_stale[ids] = True  # an empty frame until the next capture (_refresh_depth)
 
     # -- stepping ---------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> StepResult:
@@ -275,12 +276,17 @@ class Tron1Env:
         return pos, rot_b @ self._cam_rot_b @ rx
 
     def _refresh_depth(self, scheduled: bool) -> None:
-        """Render every student's camera when a 30 Hz frame is due (``scheduled``), else only the
-        students reset since the last render (their held frame belongs to the last episode)."""
+        """A 30 Hz capture (``scheduled``) renders every student's camera. Between captures a
+        student reset since the last one holds an empty frame (0 = no return) until the next
+        capture, at most one policy step: the camera keeps its own clock, and a new episode must
+        not see the last one's view."""
         first = self.cfg.depth_from
         stale = first + np.flatnonzero(self._depth_stale[first:])
         self._depth_stale[:] = False
-        self._render_depth(np.arange(first, self.n) if scheduled else stale)
+        if scheduled:
+            self._render_depth(np.arange(first, self.n))
+        elif len(stale) and self.camera is not None:
+            self.set_depth(stale, np.zeros((len(stale),) + self.depth.shape[1:], dtype=np.float32))
 
     def _render_depth(self, ids: np.ndarray) -> None:
         """Render the depth camera of envs ``ids`` (the frame is then held until the next render).
@@ -301,7 +307,7 @@ class Tron1Env:
             max_maps=self._depth_max,
         )
         if self.cfg.noise.enabled:
-            img = sensors.add_depth_noise(img, self.camera, self.rng)
+            img = sensors.add_depth_noise(img, self.camera, self.rng, out=img)
         self.set_depth(ids, img)
 
     def set_depth(self, ids: np.ndarray, images: np.ndarray) -> None:

@@ -591,7 +591,7 @@ def _noise_kernel(d, out, key, std, frac, hole_below, near, far, table):
             out[i] = min(max(v + z * (std + frac * v), near), far)
 
 
-def add_depth_noise(depth, cam: DepthCamera, rng: np.random.Generator) -> np.ndarray:
+def add_depth_noise(depth, cam: DepthCamera, rng: np.random.Generator, out=None) -> np.ndarray:
     """Noisy copy of ``depth`` (N, H, W): Gaussian noise, then clip to [near, far], then holes.
 
     Noise std = ``noise_std_m + noise_range_frac * depth``; each pixel becomes a hole (0, no return)
@@ -599,11 +599,16 @@ def add_depth_noise(depth, cam: DepthCamera, rng: np.random.Generator) -> np.nda
     draws from a hash of its index and one 64-bit key taken from ``rng`` per call, so the result
     is fixed by ``rng``'s state whatever the thread count. The Gaussian is quantised to 2^16
     equally likely levels (tails cut at 4.3 sigma); hole probabilities resolve to 2^-32.
+    ``out``: a C-contiguous float32 array of the same shape to write into (``depth`` itself works).
     """
     d = np.ascontiguousarray(depth, dtype=np.float32)
+    if out is None:
+        out = np.empty_like(d)
+    elif out.shape != d.shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be C-contiguous float32 {d.shape}")
     if cam.noise_std_m == 0.0 and cam.noise_range_frac == 0.0 and cam.hole_prob == 0.0:
-        return d.copy()
-    out = np.empty_like(d)
+        out[...] = d
+        return out
     key = np.uint64(rng.integers(0, 2**63, dtype=np.int64))
     hole_below = np.uint64(min(round(cam.hole_prob * 2.0**32), 2**32))
     _noise_kernel(
