@@ -57,6 +57,7 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--hidden", "a,b"], 2, "--hidden"),
         (["--critic-weights", "speed=2"], 2, "unknown reward group 'speed'"),
         (["--ablation", "single-critic", "--critic-weights", "stable=0.5"], 2, "groups: all"),
+        (["--terrain", "stairs", "--randomize-skip", "lava"], 2, "unknown randomisation terms ['lava']"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):
@@ -106,11 +107,15 @@ def test_saved_reward_is_restored_not_rebuilt():
 
 def test_stairs_run_has_perception_and_logs_terrain_levels(tmp_path):
     run = tmp_path / "stairs"
-    r = tron1("train", *SMALL, "--terrain", "stairs", "--iterations", "1", "--run-dir", str(run))
+    skip = ("--randomize-skip", "restitution,delay")
+    r = tron1("train", *SMALL, "--terrain", "stairs", *skip, "--iterations", "1", "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
-    assert "perception on, randomisation on, pushes on" in " ".join(r.stderr.split())
+    header = " ".join(r.stderr.split())
+    assert "perception on, randomisation on except restitution, delay, pushes on" in header
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["env"]["perception"] and cfg["env"]["depth_from"] == 8
+    terms = cfg["env"]["randomization"]["terms"]
+    assert "restitution" not in terms and "delay" not in terms and "friction" in terms
     (m,) = metrics(run)
     assert set(k for k in m if k.startswith("terrain/level/")) == {
         "terrain/level/stairs_up",

@@ -68,6 +68,12 @@ def train(
         help="Table III domain randomisation [default: on except on flat].",
         show_default=False,
     ),
+    randomize_skip: str = typer.Option(
+        "",
+        "--randomize-skip",
+        help="Table III terms to leave out, e.g. restitution (MuJoCo turns it into underdamped contacts: "
+        "untrained robots fall twice as fast).",
+    ),
     critic_weights: str = typer.Option(
         "",
         "--critic-weights",
@@ -148,7 +154,7 @@ def train(
                 gait=GaitConfig(enabled=gait_prior),
                 perception=rough if perception is None else perception,
                 depth_from=int(round(envs * teacher_ratio)),  # students see depth, teachers the heightmap
-                randomization=RandomizationConfig.table_iii()
+                randomization=RandomizationConfig.table_iii(skip=_csv(randomize_skip))
                 if (rough if randomize is None else randomize)
                 else RandomizationConfig(),
                 pushes=PushConfig.moderate() if (rough if pushes is None else pushes) else PushConfig(),
@@ -183,7 +189,7 @@ def train(
         f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher), "
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
-        f"{'on' if c.env.randomization.terms else 'off'}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
+        f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
         f"seed {c.env.seed} -> {run_dir}" + (f" (resumed at iteration {trainer.iteration})" if resume else "")
     )
     progress = Progress(
@@ -238,3 +244,17 @@ def train(
         t.add_row(label, _fmt(last.get(f"teacher/{key}")), _fmt(last.get(f"student/{key}")))
     out.print(t)
     out.print(f"checkpoint: {run_dir / 'checkpoints' / 'latest.pt'}")
+
+
+def _csv(text: str) -> tuple[str, ...]:
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+def _dr_summary(terms: tuple[str, ...]) -> str:
+    """'on', 'off' or 'on except a, b' for the Table III terms in use."""
+    from tron1cli.env.randomization import ALL_TERMS
+
+    if not terms:
+        return "off"
+    left_out = [t for t in ALL_TERMS if t not in terms]
+    return "on" + (f" except {', '.join(left_out)}" if left_out else "")

@@ -69,9 +69,14 @@ class RandomizationConfig:
             )
 
     @classmethod
-    def table_iii(cls) -> RandomizationConfig:
-        """Every term of the paper's Table III."""
-        return cls(terms=ALL_TERMS)
+    def table_iii(cls, skip: tuple[str, ...] = ()) -> RandomizationConfig:
+        """Every term of the paper's Table III, but those in ``skip``."""
+        unknown = set(skip) - set(ALL_TERMS)
+        if unknown:
+            raise ValueError(
+                f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}"
+            )
+        return cls(terms=tuple(t for t in ALL_TERMS if t not in skip))
 
     def on(self, term: str) -> bool:
         return term in self.terms
