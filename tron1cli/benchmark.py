@@ -98,7 +98,7 @@ def run_bench(
             raw_s.append(time.perf_counter() - t0)
             if denv is not None:
                 depth_s.append(_time_env(denv, actions, warmup, record=False)[0])
-        rates = steps * num_envs / np.array([raw_s, env_s] + ([depth_s] if depth else []))
+        rates = steps * num_envs / np.array([raw_s, env_s] + ([depth_s] if denv is not None else []))
         res = {
             "num_envs": num_envs,
             "steps": steps,

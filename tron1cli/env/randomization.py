@@ -45,6 +45,12 @@ ALL_TERMS = (
 )
 
 
+def _check_terms(terms: tuple[str, ...]) -> None:
+    unknown = set(terms) - set(ALL_TERMS)
+    if unknown:
+        raise ValueError(f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}")
+
+
 @dataclass(frozen=True)
 class RandomizationConfig:
     """Which Table III terms are on (``terms``) and their ranges (units in the names)."""
@@ -62,20 +68,12 @@ class RandomizationConfig:
     camera_pitch_deg: float = 1.0
 
     def __post_init__(self) -> None:
-        unknown = set(self.terms) - set(ALL_TERMS)
-        if unknown:
-            raise ValueError(
-                f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}"
-            )
+        _check_terms(self.terms)
 
     @classmethod
     def table_iii(cls, skip: tuple[str, ...] = ()) -> RandomizationConfig:
         """Every term of the paper's Table III, but those in ``skip``."""
-        unknown = set(skip) - set(ALL_TERMS)
-        if unknown:
-            raise ValueError(
-                f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}"
-            )
+        _check_terms(skip)
         return cls(terms=tuple(t for t in ALL_TERMS if t not in skip))
 
     def on(self, term: str) -> bool:
