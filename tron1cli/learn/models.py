@@ -159,18 +159,32 @@ class DepthHeightEstimator(nn.Module):
         self.gru = GRUCell(2 * f, cfg.gru_hidden)
         self.out = nn.Linear(cfg.gru_hidden, cfg.latent_h)
 
-    def features(self, hist_n: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """(B, H*P), (B, rows, cols) -> (B, 2 * depth_feature), the GRU input."""
-        return torch.cat([self.hist_act(self.hist_mlp(hist_n)), self.cnn(depth)], dim=-1)
+    def features(
+        self,
+        hist_n: torch.Tensor,
+        depth: torch.Tensor | None,
+        image_features: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """(B, H*P), (B, rows, cols) -> (B, 2 * depth_feature), the GRU input.
+
+        image_features: ``cnn(depth)`` (B, depth_feature) when the caller already has it (a frame
+        held over from the previous step); ``depth`` is then not looked at.
+        """
+        img = self.cnn(depth) if image_features is None else image_features
+        return torch.cat([self.hist_act(self.hist_mlp(hist_n)), img], dim=-1)
 
     def latent(self, hidden: torch.Tensor) -> torch.Tensor:
         return l2_normalize(self.out(hidden))
 
     def step(
-        self, hist_n: torch.Tensor, depth: torch.Tensor, hidden: torch.Tensor
+        self,
+        hist_n: torch.Tensor,
+        depth: torch.Tensor,
+        hidden: torch.Tensor,
+        image_features: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """One policy step: -> (l^{s,h}, hidden_next)."""
-        h = self.gru(self.features(hist_n, depth), hidden)
+        """One policy step: -> (l^{s,h}, hidden_next); image_features as in :meth:`features`."""
+        h = self.gru(self.features(hist_n, depth, image_features), hidden)
         return self.latent(h), h
 
 
@@ -270,15 +284,22 @@ class VisionCTS(nn.Module):
         return l2_normalize(self.est_e(hist_n))
 
     def student_latents(
-        self, hist_n: torch.Tensor, depth: torch.Tensor | None, hidden: torch.Tensor
+        self,
+        hist_n: torch.Tensor,
+        depth: torch.Tensor | None,
+        hidden: torch.Tensor,
+        image_features: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """-> (l^{s,e}, l^{s,h}, hidden_next); hidden passes through unchanged without depth."""
+        """-> (l^{s,e}, l^{s,h}, hidden_next); hidden passes through unchanged without depth.
+
+        image_features: the depth CNN's output for ``depth`` when the caller has it already.
+        """
         le = self.student_latent_e(hist_n)
         if self.est_h is None:
             return le, self._empty(hist_n), hidden
         if isinstance(self.est_h, DepthHeightEstimator):
             assert depth is not None
-            lh, h = self.est_h.step(hist_n, depth, hidden)
+            lh, h = self.est_h.step(hist_n, depth, hidden, image_features)
             return le, lh, h
         return le, l2_normalize(self.est_h(hist_n)), hidden
 

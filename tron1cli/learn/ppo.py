@@ -105,6 +105,10 @@ class VisionCTSLearner:
             self.device,
         )
         self.hidden = torch.zeros(self.n_student, cfg.gru_hidden, device=self.device)
+        # the depth frame each student env saw at its last act() and its CNN features: a 30 Hz frame
+        # held over a 50 Hz policy step is not run through the CNN again (None: nothing cached)
+        self._frames: torch.Tensor | None = None
+        self._frame_features: torch.Tensor | None = None
         self.weights = torch.tensor(
             [float(cfg.critic_weights.get(g, 1.0)) for g in groups], device=self.device
         )
@@ -186,6 +190,24 @@ class VisionCTSLearner:
             st.rec_env_ids.copy_(pick + self.n_teacher)
             st.hidden0.copy_(self.hidden[pick])
 
+    def _image_features(self, depth: torch.Tensor) -> torch.Tensor:
+        """CNN features (n_student, depth_feature) of the students' frames, computed only for the envs
+        whose frame differs from the one they saw at the previous act() (the cache lives until the
+        next update, which changes the CNN)."""
+        cnn = self.model.est_h.cnn
+        if self._frames is None:
+            self._frames = depth.clone()
+            self._frame_features = cnn(depth)
+            return self._frame_features
+        new = torch.nonzero((depth != self._frames).flatten(1).any(dim=1)).squeeze(-1)
+        if new.numel():
+            self._frames[new] = depth[new]
+            self._frame_features[new] = cnn(depth[new])
+        return self._frame_features
+
+    def _drop_image_cache(self) -> None:
+        self._frames = self._frame_features = None
+
     @torch.no_grad()
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Sample actions (N, A) for observation groups with N rows; stores what PPO needs.
@@ -213,7 +235,8 @@ class VisionCTSLearner:
             lh[:nt].copy_(lh_t)
         if self.n_student > 0:
             depth = ob["depth"][nt:] if "depth" in ob else None
-            le_s, lh_s, hid = m.student_latents(ob["history"][nt:], depth, self.hidden)
+            feats = self._image_features(depth) if m.depth_path else None
+            le_s, lh_s, hid = m.student_latents(ob["history"][nt:], depth, self.hidden, feats)
             le[nt:].copy_(le_s)
             lh[nt:].copy_(lh_s)
             self.hidden.copy_(hid)
@@ -297,17 +320,21 @@ class VisionCTSLearner:
         """
         cfg, m, st = self.cfg, self.model, self.storage
         ent_c = self.entropy_coef_now() if entropy_coef is None else entropy_coef
+        # the same samples with the teacher rows first (every term is a mean over rows): the teacher
+        # latents are then computed on a contiguous block, with no masked gather or scatter
+        tm = self._is_teacher[idx]
+        k = int(tm.sum())
+        idx = idx[torch.argsort((~tm).to(torch.int8), stable=True)]
         o = st.flat("proprio")[idx]
         e = st.flat("privileged")[idx]
         h = st.flat("heightmap")[idx] if self.dims.has_heightmap else None
         le = st.flat("latent_e")[idx]
         lh = st.flat("latent_h")[idx]
-        tm = self._is_teacher[idx]
-        if bool(tm.any()):
-            le_t, lh_t = m.teacher_latents(e[tm], h[tm] if h is not None else None)
-            le = le.index_put((tm,), le_t)
+        if k:
+            le_t, lh_t = m.teacher_latents(e[:k], h[:k] if h is not None else None)
+            le = torch.cat([le_t, le[k:]])
             if m.latent_h_dim:
-                lh = lh.index_put((tm,), lh_t)
+                lh = torch.cat([lh_t, lh[k:]])
         mu = m.action_mean(o, le, lh)
         log_std = m.log_std.expand_as(mu)
         logp = _gaussian_log_prob(st.flat("actions")[idx], mu, log_std)
@@ -376,6 +403,25 @@ class VisionCTSLearner:
         scale = self.model.norm_heightmap.scale()
         return torch.sqrt(((h_hat_n - h_n) * scale).square().mean()) * 100.0
 
+    def _chunk_image_features(self, frames: torch.Tensor) -> torch.Tensor:
+        """CNN features (L * B, depth_feature) of frames (L, B, rows, cols), steps first.
+
+        A frame equal to the same env's frame one step earlier (a 30 Hz frame held over a 50 Hz
+        step) reuses its features instead of a second CNN pass; the gradient of the shared features
+        is the sum over their uses, exactly what separate passes would give.
+        """
+        L, B = frames.shape[:2]
+        held = torch.zeros(L, B, dtype=torch.bool, device=frames.device)
+        held[1:] = (frames[1:] == frames[:-1]).flatten(2).all(dim=2)
+        steps = torch.arange(L, device=frames.device).unsqueeze(1).expand(L, B)
+        source = torch.cummax(torch.where(held, 0, steps), dim=0).values  # step of the frame shown
+        fresh = torch.nonzero(~held.reshape(-1)).squeeze(-1)  # flat (step * B + env) of new frames
+        slot = torch.empty(L * B, dtype=torch.long, device=frames.device)
+        slot[fresh] = torch.arange(fresh.numel(), device=frames.device)
+        envs = torch.arange(B, device=frames.device)
+        unique = self.model.est_h.cnn(frames.reshape(L * B, *frames.shape[2:])[fresh])
+        return unique[slot[(source * B + envs).reshape(-1)]]
+
     def image_reconstruction_loss(
         self, start: int, length: int, hidden: torch.Tensor
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
@@ -394,7 +440,8 @@ class VisionCTSLearner:
         L, B = hist.shape[0], hist.shape[1]
         with torch.no_grad():
             lh_t = l2_normalize(m.teacher_h(hmap))
-        feats = est.features(hist.reshape(L * B, -1), st.depth[sl].reshape(L * B, *st.depth.shape[2:]))
+        frames = st.depth[sl]
+        feats = est.features(hist.reshape(L * B, -1), None, self._chunk_image_features(frames))
         feats = feats.reshape(L, B, -1)
         hs = []
         h = hidden
@@ -494,6 +541,7 @@ class VisionCTSLearner:
         stats["action_std"] = float(torch.exp(m.log_std.detach()).mean())
         self.iteration += 1
         self.step = 0
+        self._drop_image_cache()
         stats["iteration"] = float(self.iteration)
         stats["learn_s"] = time.perf_counter() - t0
         return stats
@@ -572,6 +620,7 @@ class VisionCTSLearner:
         else:
             self.hidden.zero_()
         self.step = 0
+        self._drop_image_cache()
 
     @classmethod
     def from_state_dict(
