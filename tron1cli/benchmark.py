@@ -149,3 +149,83 @@ def _time_sensors(env: Tron1Env, repeats: int = 5) -> dict:
         "depth_images_per_s": repeats * env.n / depth_s,
         "depth_ms_per_image": 1e3 * depth_s / (repeats * env.n),
     }
+
+
+def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") -> dict:
+    """Whole training iterations of ``cfg`` (a :class:`tron1cli.train.runner.RunConfig`) against the
+    raw MuJoCo rate of the same physics, in one run.
+
+    Each round trains one iteration, recording the physics state and controls of its T env steps,
+    then replays them through ``mujoco.rollout`` alone (the raw rate). Returns the median rates of
+    the whole iteration, its collection and its learning (env steps per second of each part) and
+    each as a ratio of the raw rate, with the per-round spread ``[min, max]`` of every ratio.
+    """
+    import tempfile
+    from pathlib import Path
+
+    from tron1cli.train.runner import Trainer
+
+    if rounds < 1 or warmup < 0:
+        raise ValueError("rounds must be >= 1 and warmup >= 0")
+    T, n = cfg.learner.num_steps_per_env, cfg.env.num_envs
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(Path(tmp), cfg, device=device)
+        try:
+            phys = trainer.env.physics
+            states = np.empty((T,) + phys.state.shape)
+            controls = np.empty((T,) + phys.control.shape)
+
+            def before(env, t):
+                states[t] = phys.state
+
+            def after(env, t, res):
+                controls[t] = phys.control
+
+            obs = trainer.env.reset(stagger=True)
+            for _ in range(warmup):
+                obs, _ = trainer.iterate(obs)
+            whole, collect, learn, raw = [], [], [], []
+            for _ in range(rounds):
+                obs, m = trainer.iterate(obs, before, after)
+                collect.append(m["collect_s"])
+                learn.append(m["learn_s"])
+                whole.append(m["collect_s"] + m["learn_s"])
+                saved = [a.copy() for a in (phys.state, phys.traj, phys.sensordata, phys.control)]
+                # the replay runs on the arrays of the live physics: put them back afterwards
+                t0 = time.perf_counter()
+                for t in range(T):
+                    phys.state[:] = states[t]
+                    phys.control[:] = controls[t]
+                    phys.rollout()
+                raw.append(time.perf_counter() - t0)
+                for dst, src in zip(
+                    (phys.state, phys.traj, phys.sensordata, phys.control), saved, strict=True
+                ):
+                    dst[:] = src
+        finally:
+            trainer.close()
+    steps = T * n
+    rates = {
+        k: steps / np.array(v)
+        for k, v in (("raw", raw), ("train", whole), ("collect", collect), ("learn", learn))
+    }
+    res = {
+        "num_envs": n,
+        "steps_per_env": T,
+        "rounds": rounds,
+        "terrain": cfg.env.terrain,
+        "perception": cfg.env.perception,
+        "nthread": cfg.env.nthread,
+        "device": device,
+        "precision": cfg.learner.precision,
+        "raw_steps_per_s": float(np.median(rates["raw"])),
+        "collect_s": float(np.median(collect)),
+        "learn_s": float(np.median(learn)),
+    }
+    for k in ("train", "collect", "learn"):
+        res[f"{k}_steps_per_s"] = float(np.median(rates[k]))
+        res[f"{k}_ratio"] = res[f"{k}_steps_per_s"] / res["raw_steps_per_s"]
+        res[f"{k}_ratio_spread"] = _spread(rates[k] / rates["raw"])
+    res["learn_over_collect"] = res["learn_s"] / res["collect_s"]
+    res.update({"cpu_count": os.cpu_count(), "machine": platform.machine()})
+    return res

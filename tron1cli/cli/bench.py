@@ -5,13 +5,19 @@ from __future__ import annotations
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.cli.common import available_cores, err, fail, out, print_json, resolve_device
 
 
 def bench(
     envs: int = typer.Option(1024, "--envs", "-n", min=1, help="Number of parallel environments."),
     steps: int = typer.Option(100, "--steps", min=1, help="Timed policy steps (after 10 warm-up steps)."),
-    threads: int = typer.Option(2, "--threads", min=1, help="Physics threads."),
+    threads: int = typer.Option(
+        None,
+        "--threads",
+        min=1,
+        help="Physics (and with --train torch) threads [default: the cores available].",
+        show_default=False,
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     terrain: str = typer.Option(
         "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
@@ -25,6 +31,16 @@ def bench(
     rounds: int = typer.Option(
         3, "--rounds", min=1, help="Alternating timing rounds; each rate is the median of its rounds."
     ),
+    train: bool = typer.Option(
+        False,
+        "--train",
+        help="Time whole training iterations (tron1 train's defaults for --terrain) against the raw "
+        "rate of the same physics: collection and learning as ratios of it.",
+    ),
+    device: str = typer.Option("cpu", "--device", help="With --train: the learner's device, cpu or cuda."),
+    precision: str = typer.Option(
+        "fp32", "--precision", help="With --train: the update's arithmetic, fp32 or bf16."
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Measure the env step rate and the raw mujoco.rollout rate of the same workload."""
@@ -35,6 +51,10 @@ def bench(
         resolve_terrain(terrain)
     except ValueError as e:
         fail(str(e), 2)
+    threads = threads or available_cores()
+    if train:
+        _bench_train(envs, threads, seed, terrain, rounds, resolve_device(device), precision, json_out)
+        return
     with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
         res = run_bench(
             envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level, rounds=rounds
@@ -61,3 +81,53 @@ def bench(
             f"{res['depth_images_per_s']:,.0f} /s ({res['depth_ms_per_image']:.3f} ms each)",
         )
     out.print(t)
+
+
+def _bench_train(
+    envs: int, threads: int, seed: int, terrain: str, rounds: int, device: str, precision: str, as_json: bool
+):
+    import torch
+
+    from tron1cli.benchmark import run_train_bench
+    from tron1cli.learn import tune_glibc_malloc
+    from tron1cli.train.runner import default_run_config
+
+    tune_glibc_malloc()
+    torch.set_num_threads(threads)
+    try:
+        cfg = default_run_config(terrain, num_envs=envs, seed=seed, nthread=threads, precision=precision)
+    except ValueError as e:
+        fail(str(e), 2)
+    with err.status(f"training {rounds} + 1 iterations of {envs} envs on {terrain}..."):
+        res = run_train_bench(cfg, rounds=rounds, device=device)
+    if as_json:
+        print_json(res)
+        return
+    t = Table(
+        title=f"tron1 bench --train: {envs} envs x {res['steps_per_env']} steps, {terrain}"
+        f"{' (perception)' if res['perception'] else ''}, {threads} threads, learner on {device} in "
+        f"{precision}, "
+        f"median of {rounds} rounds"
+    )
+    for col, just in (
+        ("what", "left"),
+        ("env steps/s", "right"),
+        ("s per iteration", "right"),
+        ("ratio to raw", "right"),
+    ):
+        t.add_column(col, justify=just)
+    t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}", "", "1.00")
+    for key, label, secs in (
+        ("train", "whole iteration (collection + learning)", res["collect_s"] + res["learn_s"]),
+        ("collect", "collection (env steps, policy inference)", res["collect_s"]),
+        ("learn", "learning (PPO epochs, estimators, image path)", res["learn_s"]),
+    ):
+        lo, hi = res[f"{key}_ratio_spread"]
+        t.add_row(
+            label,
+            f"{res[f'{key}_steps_per_s']:,.0f}",
+            f"{secs:.2f}",
+            f"{res[f'{key}_ratio']:.2f} ({lo:.2f}-{hi:.2f})",
+        )
+    out.print(t)
+    out.print(f"learning / collection time: {res['learn_over_collect']:.2f}")

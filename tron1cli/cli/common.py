@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 from rich.console import Console
@@ -22,3 +23,27 @@ def print_json(obj: dict) -> None:
     """One JSON object on stdout, nothing else."""
     sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False) + "\n")
     sys.stdout.flush()
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask; all cores where that is unknown)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def resolve_device(name: str) -> str:
+    """``cpu`` or ``cuda`` (the learner's device); exits 2 naming the problem otherwise."""
+    if name not in ("cpu", "cuda"):
+        fail(f"--device must be cpu or cuda, got '{name}'", 2)
+    if name == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            fail(
+                "--device cuda: torch sees no CUDA GPU on this machine (this torch build: "
+                f"{torch.__version__}); use --device cpu",
+                2,
+            )
+    return name

@@ -3,18 +3,13 @@
 from __future__ import annotations
 
 import signal
-from dataclasses import replace
 from pathlib import Path
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out
-
-#: weight of the stability critic's normalised advantage (the locomotion one has 1): with 1, the
-#: 20-min flat run tracked 0.43 m/s; with 0.5, it tracked about 0.3 m/s (README, policies/README.md)
-DEFAULT_STABLE_WEIGHT = 0.5
+from tron1cli.cli.common import available_cores, err, fail, out, resolve_device
 
 
 def _fmt(v) -> str:
@@ -55,7 +50,22 @@ def train(
     ),
     save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
     minutes: float = typer.Option(None, "--minutes", min=0.0, help="Stop after this much wall-clock time."),
-    threads: int = typer.Option(2, "--threads", min=1, help="Physics and torch threads."),
+    threads: int = typer.Option(
+        None,
+        "--threads",
+        min=1,
+        help="Physics and torch threads [default: the cores available to this process].",
+        show_default=False,
+    ),
+    device: str = typer.Option(
+        "cpu", "--device", help="Where the learner runs: cpu or cuda (the simulator stays on the CPU)."
+    ),
+    precision: str = typer.Option(
+        "fp32",
+        "--precision",
+        help="The update's arithmetic: fp32, or bf16 (matrix products in bfloat16, float32 "
+        "accumulation: several times faster on CPUs with AMX and on recent GPUs).",
+    ),
     perception: bool | None = typer.Option(
         None,
         "--perception/--no-perception",
@@ -97,12 +107,9 @@ def train(
     ),
 ) -> None:
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
-    from tron1cli.config import EnvConfig, GaitConfig
-    from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS, STABLE, make_reward_config
+    from tron1cli.env.rewards import ABLATIONS, make_reward_config
     from tron1cli.learn import tune_glibc_malloc
-    from tron1cli.learn.config import LearnerConfig
-    from tron1cli.train.runner import RunConfig, Trainer, check_run_dir
+    from tron1cli.train.runner import Trainer, check_run_dir, default_run_config
 
     if ablation not in ABLATIONS:
         fail(f"unknown ablation '{ablation}'; choose from {', '.join(ABLATIONS)}", 2)
@@ -138,46 +145,35 @@ def train(
             f"--critic-weights: unknown reward group '{unknown[0]}'; this run's groups: {', '.join(groups)}",
             2,
         )
-    if not critic_weights.strip() and STABLE in groups:
-        weights = {STABLE: DEFAULT_STABLE_WEIGHT}
+    device = resolve_device(device)
+    threads = threads or available_cores()
     check_run_dir(run_dir, resume)
     tune_glibc_malloc()
     cfg = None
     if not resume:
         try:
-            rough = terrain != "flat"  # the paper's perceptive training; flat is the quick start
-            env_cfg = EnvConfig(
+            cfg = default_run_config(
+                terrain,
                 num_envs=envs,
                 seed=seed,
-                terrain=terrain,
                 nthread=threads,
-                gait=GaitConfig(enabled=gait_prior),
-                perception=rough if perception is None else perception,
-                depth_from=int(round(envs * teacher_ratio)),  # students see depth, teachers the heightmap
-                randomization=RandomizationConfig.table_iii(skip=_csv(randomize_skip))
-                if (rough if randomize is None else randomize)
-                else RandomizationConfig(),
-                pushes=PushConfig.moderate() if (rough if pushes is None else pushes) else PushConfig(),
-            )
-            learner_cfg = replace(
-                LearnerConfig(),
-                teacher_ratio=teacher_ratio,
-                num_steps_per_env=steps_per_env,
-                actor_hidden=sizes,
-                critic_hidden=sizes,
-                critic_weights=weights,
-            )
-            cfg = RunConfig(
-                env=env_cfg,
-                learner=learner_cfg,
-                ablation=ablation,
                 gait_prior=gait_prior,
+                perception=perception,
+                randomize=randomize,
+                randomize_skip=_csv(randomize_skip),
+                pushes=pushes,
+                teacher_ratio=teacher_ratio,
+                steps_per_env=steps_per_env,
+                hidden=sizes,
+                critic_weights=weights or None,
+                ablation=ablation,
                 iterations=iterations or 300,
                 save_every=save_every,
+                precision=precision,
             )
         except ValueError as e:
             fail(str(e), 2)
-    trainer = Trainer(run_dir, cfg, resume=resume, iterations=iterations)
+    trainer = Trainer(run_dir, cfg, resume=resume, iterations=iterations, device=device, threads=threads)
     c = trainer.cfg
     if trainer.iteration >= c.iterations:
         trainer.close()
@@ -190,7 +186,8 @@ def train(
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
-        f"seed {c.env.seed} -> {run_dir}" + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+        f"seed {c.env.seed}, {c.env.nthread} threads, learner on {device} in {c.learner.precision} "
+        f"-> {run_dir}" + (f" (resumed at iteration {trainer.iteration})" if resume else "")
     )
     progress = Progress(
         TextColumn("[bold]iter"),

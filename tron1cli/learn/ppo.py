@@ -26,6 +26,7 @@ Call order per iteration: T x (``act(obs)``, env step, ``process_step(...)``), t
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import time
@@ -459,6 +460,12 @@ class VisionCTSLearner:
 
     # ------------------------------------------------------------------------------------------
     # update
+    def _precision(self) -> contextlib.AbstractContextManager:
+        """The update's arithmetic: nothing for fp32, bfloat16 autocast for bf16."""
+        if self.cfg.precision == "bf16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
     def _adapt_lr(self, kl: float) -> None:
         c = self.cfg
         if c.desired_kl is None:
@@ -501,7 +508,8 @@ class VisionCTSLearner:
         for _ in range(cfg.num_epochs):
             perm = torch.randperm(n_samples, generator=self.generator, device=self.device)
             for idx in torch.tensor_split(perm, cfg.num_minibatches):
-                loss, info = self.ppo_loss(idx, ent_c)
+                with self._precision():
+                    loss, info = self.ppo_loss(idx, ent_c)
                 self._adapt_lr(float(info["kl"]))
                 self.opt_ppo.zero_grad(set_to_none=True)
                 loss.backward()
@@ -512,7 +520,8 @@ class VisionCTSLearner:
                 add("kl", info["kl"])
                 for g, vl in zip(self.groups, info["value_losses"], strict=True):
                     add(f"value_loss/{g}", vl)
-                rec, parts = self.reconstruction_loss(idx)
+                with self._precision():
+                    rec, parts = self.reconstruction_loss(idx)
                 if rec.requires_grad:
                     self.opt_rec.zero_grad(set_to_none=True)
                     rec.backward()
@@ -525,7 +534,8 @@ class VisionCTSLearner:
             hidden = st.hidden0.clone()
             for s in range(0, cfg.num_steps_per_env, cfg.tbptt):
                 length = min(cfg.tbptt, cfg.num_steps_per_env - s)
-                loss, parts, hidden = self.image_reconstruction_loss(s, length, hidden.detach())
+                with self._precision():
+                    loss, parts, hidden = self.image_reconstruction_loss(s, length, hidden.detach())
                 self.opt_rec.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(rec_params, cfg.max_grad_norm)
@@ -600,7 +610,8 @@ class VisionCTSLearner:
 
     def load_state_dict(self, sd: Mapping) -> None:
         """Restore a :meth:`state_dict`. Any partial rollout is discarded. GRU states and the sampling
-        generator are restored only when the env count matches (else they start fresh)."""
+        generator are restored only when the env count matches (else they start fresh); a generator
+        saved on another kind of device is reseeded from the seed and the iteration."""
         if sd.get("format") != CHECKPOINT_FORMAT:
             raise ValueError(f"not a learner checkpoint (format {sd.get('format')!r})")
         if ObsDims.from_dict(sd["dims"]) != self.dims:
@@ -614,9 +625,13 @@ class VisionCTSLearner:
         for g in self.opt_ppo.param_groups:
             g["lr"] = self.lr
         self.iteration = int(sd["iteration"])
-        if int(sd["num_envs"]) == self.num_envs and int(sd["n_teacher"]) == self.n_teacher:
-            self.generator.set_state(sd["generator"])
+        same_envs = int(sd["num_envs"]) == self.num_envs and int(sd["n_teacher"]) == self.n_teacher
+        if same_envs:
             self.hidden.copy_(sd["hidden"].to(self.device))
+            try:  # a generator state saved on another kind of device does not fit this one
+                self.generator.set_state(sd["generator"])
+            except RuntimeError:
+                self.generator.manual_seed(self.seed + self.iteration)
         else:
             self.hidden.zero_()
         self.step = 0

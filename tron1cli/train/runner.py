@@ -23,10 +23,11 @@ import numpy as np
 import torch
 
 from tron1cli import __version__
-from tron1cli.config import EnvConfig
+from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.rewards import RewardConfig, make_reward_config
+from tron1cli.env.randomization import PushConfig, RandomizationConfig
+from tron1cli.env.rewards import STABLE, RewardConfig, make_reward_config
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
@@ -77,6 +78,74 @@ class RunConfig:
         return replace(cfg, saved_reward=RewardConfig.from_dict(reward)) if reward else cfg
 
 
+#: weight of the stability critic's normalised advantage (the locomotion one has 1): with 1, the
+#: 20-min flat run tracked 0.43 m/s; with 0.5, it tracked about 0.3 m/s (README, policies/README.md)
+DEFAULT_STABLE_WEIGHT = 0.5
+
+
+def default_run_config(
+    terrain: str = "flat",
+    num_envs: int = 1024,
+    seed: int = 0,
+    nthread: int = 2,
+    *,
+    gait_prior: bool = True,
+    perception: bool | None = None,
+    randomize: bool | None = None,
+    randomize_skip: tuple[str, ...] = (),
+    pushes: bool | None = None,
+    teacher_ratio: float = 0.5,
+    steps_per_env: int = 24,
+    hidden: tuple[int, ...] = (256, 128, 64),
+    critic_weights: dict[str, float] | None = None,
+    ablation: str = "none",
+    iterations: int = 300,
+    save_every: int = 50,
+    precision: str = "fp32",
+) -> RunConfig:
+    """The run ``tron1 train`` makes from its options (ValueError for invalid values).
+
+    Off flat ground perception (heightmap for teachers, 30 Hz depth for students), Table III
+    randomisation and moderate pushes are on unless switched off (None: that default); flat ground
+    is the blind quick start. critic_weights None: the stability group weighted
+    :data:`DEFAULT_STABLE_WEIGHT`, every other group 1.
+    """
+    rough = terrain != "flat"
+    groups = make_reward_config(ablation, gait_prior=gait_prior).groups
+    if critic_weights is None:
+        critic_weights = {STABLE: DEFAULT_STABLE_WEIGHT} if STABLE in groups else {}
+    env_cfg = EnvConfig(
+        num_envs=num_envs,
+        seed=seed,
+        terrain=terrain,
+        nthread=nthread,
+        gait=GaitConfig(enabled=gait_prior),
+        perception=rough if perception is None else perception,
+        depth_from=int(round(num_envs * teacher_ratio)),  # students see depth, teachers the heightmap
+        randomization=RandomizationConfig.table_iii(skip=randomize_skip)
+        if (rough if randomize is None else randomize)
+        else RandomizationConfig(),
+        pushes=PushConfig.moderate() if (rough if pushes is None else pushes) else PushConfig(),
+    )
+    learner_cfg = replace(
+        LearnerConfig(),
+        teacher_ratio=teacher_ratio,
+        num_steps_per_env=steps_per_env,
+        actor_hidden=hidden,
+        critic_hidden=hidden,
+        critic_weights=critic_weights,
+        precision=precision,
+    )
+    return RunConfig(
+        env=env_cfg,
+        learner=learner_cfg,
+        ablation=ablation,
+        gait_prior=gait_prior,
+        iterations=iterations,
+        save_every=save_every,
+    )
+
+
 def obs_dims(env: Tron1Env) -> ObsDims:
     sizes = env.layout.sizes()
     return ObsDims(
@@ -98,10 +167,18 @@ class Trainer:
 
     A new run takes ``cfg``; ``resume`` continues the run saved in ``checkpoints/latest.pt`` with
     its saved configuration, up to ``iterations`` in total when given (else the saved total).
+    device: where the learner computes (``cpu`` or ``cuda``); the env core always runs on the CPU.
+    threads: physics and torch threads of a resumed run (a new run takes ``cfg.env.nthread``).
     """
 
     def __init__(
-        self, run_dir: Path, cfg: RunConfig | None = None, resume: bool = False, iterations: int | None = None
+        self,
+        run_dir: Path,
+        cfg: RunConfig | None = None,
+        resume: bool = False,
+        iterations: int | None = None,
+        device: str = "cpu",
+        threads: int | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -112,6 +189,8 @@ class Trainer:
             cfg = RunConfig.from_dict(json.loads(state["config"]))
             if iterations is not None:
                 cfg = replace(cfg, iterations=iterations)
+            if threads is not None:  # the machine may differ from the one the run started on
+                cfg = replace(cfg, env=replace(cfg.env, nthread=threads))
         elif cfg is None:
             raise UsageError("a new run needs a configuration")
         elif (self.ckpt_dir / "latest.pt").exists():
@@ -122,7 +201,12 @@ class Trainer:
         self.env = Tron1Env(cfg.env, cfg.reward)
         self.n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
         self.learner = VisionCTSLearner(
-            obs_dims(self.env), cfg.env.num_envs, cfg.reward.groups, cfg.learner, seed=cfg.env.seed
+            obs_dims(self.env),
+            cfg.env.num_envs,
+            cfg.reward.groups,
+            cfg.learner,
+            device=device,
+            seed=cfg.env.seed,
         )
         self.iteration = 0
         self.env_steps = 0
@@ -157,6 +241,57 @@ class Trainer:
         os.replace(tmp, self.run_dir / "config.json")
 
     # -- the loop ---------------------------------------------------------------------------
+    def iterate(
+        self, obs: dict, before_step: Callable | None = None, after_step: Callable | None = None
+    ) -> tuple[dict, dict]:
+        """One PPO iteration from observation ``obs``: T env steps, then the update.
+
+        before_step(env, t) and after_step(env, t, result): called around each env step (t: step in
+        the rollout; result: what ``env.step`` returned).
+        Returns (next observation, metrics of the iteration).
+        """
+        t0 = time.perf_counter()
+        env, learner, n_t = self.env, self.learner, self.n_teacher
+        T = self.cfg.learner.num_steps_per_env
+        group_reward = {g: 0.0 for g in env.reward_cfg.groups}
+        for t in range(T):
+            actions = learner.act(obs)
+            if before_step is not None:
+                before_step(env, t)
+            res = env.step(actions)
+            if after_step is not None:
+                after_step(env, t, res)
+            learner.process_step(res.rewards, res.done, res.time_out, res.terminal_obs)
+            for g, r in res.rewards.items():
+                group_reward[g] += float(r.mean())
+            self.stats.add_episodes(np.flatnonzero(res.done), res.episode, n_t)
+            self.stats.add_tracking(tracking_error(env), n_t)
+            obs = res.obs
+        t1 = time.perf_counter()
+        learn_stats = learner.update(obs)
+        t2 = time.perf_counter()
+        self.iteration += 1
+        steps = T * env.n
+        self.env_steps += steps
+        self.wall_s += t2 - t0
+        m = {
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "wall_s": round(self.wall_s, 3),
+            "steps_per_s": steps / (t2 - t0),
+            "collect_s": t1 - t0,
+            "learn_s": t2 - t1,
+            "unstable_resets": env.unstable_count,
+        }
+        m.update({f"step_reward/{g}": v / T for g, v in group_reward.items()})
+        m.update(self.stats.summary())
+        if env.model.nhfield:  # terrain level per type (0 easiest .. num_levels - 1)
+            levels = env.curriculum.mean_levels()
+            m.update({f"terrain/level/{t}": v for t, v in levels.items()})
+            m["terrain/mean_level"] = float(env.curriculum.level.mean())
+        m.update({f"learn/{k}": v for k, v in learn_stats.items()})
+        return obs, m
+
     def run(
         self,
         on_iteration: Callable[[dict], None] | None = None,
@@ -174,51 +309,25 @@ class Trainer:
         watched = min(self.n_teacher, self.env.n - 1)
         following = False
         start = time.perf_counter()
-        env, learner, n_t = self.env, self.learner, self.n_teacher
-        obs = env.reset(stagger=True)
+        obs = self.env.reset(stagger=True)
         T = self.cfg.learner.num_steps_per_env
         last: dict = {}
+
+        def log(env: Tron1Env, t: int) -> None:
+            nonlocal following
+            if following:
+                step = self.iteration * T + t
+                stream.log_step(env, watched, step, step * env.policy_dt)
+
+        def unfollow(env: Tron1Env, t: int, res) -> None:
+            nonlocal following
+            following &= not res.done[watched]
+
         with open(self.metrics_path, "a") as mlog:
             while self.iteration < self.cfg.iterations:
-                t0 = time.perf_counter()
-                group_reward = {g: 0.0 for g in env.reward_cfg.groups}
                 following |= stream is not None and self.iteration % stream_every == 0
-                for t in range(T):
-                    actions = learner.act(obs)
-                    if following:
-                        step = self.iteration * T + t
-                        stream.log_step(env, watched, step, step * env.policy_dt)
-                    res = env.step(actions)
-                    following &= not res.done[watched]
-                    learner.process_step(res.rewards, res.done, res.time_out, res.terminal_obs)
-                    for g, r in res.rewards.items():
-                        group_reward[g] += float(r.mean())
-                    self.stats.add_episodes(np.flatnonzero(res.done), res.episode, n_t)
-                    self.stats.add_tracking(tracking_error(env), n_t)
-                    obs = res.obs
-                t1 = time.perf_counter()
-                learn_stats = learner.update(obs)
-                t2 = time.perf_counter()
-                self.iteration += 1
-                steps = T * env.n
-                self.env_steps += steps
-                self.wall_s += t2 - t0
-                m = {
-                    "iteration": self.iteration,
-                    "env_steps": self.env_steps,
-                    "wall_s": round(self.wall_s, 3),
-                    "steps_per_s": steps / (t2 - t0),
-                    "collect_s": t1 - t0,
-                    "learn_s": t2 - t1,
-                    "unstable_resets": env.unstable_count,
-                }
-                m.update({f"step_reward/{g}": v / T for g, v in group_reward.items()})
-                m.update(self.stats.summary())
-                if env.model.nhfield:  # terrain level per type (0 easiest .. num_levels - 1)
-                    levels = env.curriculum.mean_levels()
-                    m.update({f"terrain/level/{t}": v for t, v in levels.items()})
-                    m["terrain/mean_level"] = float(env.curriculum.level.mean())
-                m.update({f"learn/{k}": v for k, v in learn_stats.items()})
+                hooks = (log, unfollow) if following else (None, None)
+                obs, m = self.iterate(obs, *hooks)
                 mlog.write(
                     json.dumps(
                         {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in m.items()}
