@@ -381,3 +381,32 @@ def test_depth_noise_same_whatever_the_thread_count():
         numba.set_num_threads(threads)
     assert np.array_equal(one, add_depth_noise(depth, cam, np.random.default_rng(9)))
     assert np.all(one[0, :2] == 0.0)
+
+
+def test_type_seed_is_stable_and_tiles_depend_on_the_name_only(monkeypatch):
+    from tron1cli.env import terrain
+
+    # pinned: a salted hash() or a list position would change this between processes or edits
+    assert terrain.type_seed("rough") == 772910865764258296
+    assert terrain.type_seed("rough") != terrain.type_seed("rough ")
+    cfg = TerrainConfig(num_levels=2, variants_per_level=1)
+    before = TerrainBank(None, cfg, seed=5)
+
+    def bumps(d: float, c: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+        return rng.uniform(0.0, 0.05 * d, (c.R, c.R))
+
+    # a new type registered in FRONT of every other one, and the old ones in reverse order
+    monkeypatch.setattr(
+        terrain,
+        "TERRAINS",
+        {"bumps": terrain.TerrainType(bumps, "bumps")} | dict(reversed(terrain.TERRAINS.items())),
+    )
+    after = TerrainBank(None, cfg, seed=5)
+    assert after.types[0] == "bumps" and set(after.types) == set(before.types) | {"bumps"}
+    for kind in before.types:
+        for level in range(cfg.num_levels):
+            a = before.heights[before.tile_index(before.types.index(kind), level, 0)]
+            b = after.heights[after.tile_index(after.types.index(kind), level, 0)]
+            assert np.array_equal(a, b), (kind, level)
+    assert "bumps" in terrain.terrain_groups() and "bumps" in terrain.terrain_choices()
+    assert np.any(after.heights[after.tile_index(0, 1, 0)] > 0)  # the new type's own tiles

@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.cli.common import err, fail, out, print_json, terrain_help
 
 
 def bench(
@@ -13,9 +13,7 @@ def bench(
     steps: int = typer.Option(100, "--steps", min=1, help="Timed policy steps (after 10 warm-up steps)."),
     threads: int = typer.Option(2, "--threads", min=1, help="Physics threads."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
-    terrain: str = typer.Option(
-        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
-    ),
+    terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     depth: bool = typer.Option(
         False,
         "--depth/--no-depth",

@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out
+from tron1cli.cli.common import err, fail, out, terrain_help
 
 #: weight of the stability critic's normalised advantage (the locomotion one has 1): with 1, the
 #: 20-min flat run tracked 0.43 m/s; with 0.5, it tracked about 0.3 m/s (README, policies/README.md)
@@ -22,9 +22,7 @@ def _fmt(v) -> str:
 
 
 def train(
-    terrain: str = typer.Option(
-        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
-    ),
+    terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     envs: int = typer.Option(1024, "--envs", "-n", min=2, help="Parallel environments (teacher + student)."),
     iterations: int = typer.Option(
         None,
