@@ -202,3 +202,21 @@ def test_bench_reports_sensor_rates():
         assert res[key] > 0
     assert res["depth_ms_per_image"] == pytest.approx(1e3 / res["depth_images_per_s"])
     assert res["depth_ratio"] == pytest.approx(res["env_depth_steps_per_s"] / res["raw_steps_per_s"])
+
+
+def test_lipm_ground_is_the_windowed_terrain_mean_under_the_com():
+    from tron1cli.env.terrain import mean_ground_height
+
+    env = make("stairs", n=4, max_init_level=9, perception=False, randomization=RandomizationConfig())
+    env.reset()
+    env.step(np.zeros((4, 6)))
+    com_xy = env.state.com_pos[:, :2]
+    side = env.reward_cfg.lipm_ground_window_m
+    expected = mean_ground_height(env.bank.heights, env.curriculum.tile, com_xy, env.bank.res, side)
+    assert side > 0 and np.allclose(env.lipm.z, env.state.com_pos[:, 2] - expected)
+    env.close()
+    flat = make("flat", n=2, perception=False, randomization=RandomizationConfig())
+    flat.reset()
+    flat.step(np.zeros((2, 6)))
+    assert np.array_equal(flat.lipm.z, flat.state.com_pos[:, 2])  # a plane: the CoM height itself
+    flat.close()

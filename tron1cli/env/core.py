@@ -25,7 +25,7 @@ from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.state import RobotState, read_state
-from tron1cli.env.terrain import TerrainBank, ground_height
+from tron1cli.env.terrain import TerrainBank, ground_height, mean_ground_height
 
 EDGE_MARGIN_M = 0.5  #: an env whose base comes this close to its tile's edge ends its episode (time-out)
 
@@ -262,6 +262,15 @@ class Tron1Env:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
         return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)
 
+    def lipm_ground_height(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height (m) of the LIPM constraint plane under world points ``xy`` (N, 2): the
+        terrain averaged over a ``reward_cfg.lipm_ground_window_m`` square (README, eq. 2-3), so
+        that a stair edge passing under the CoM does not make the intercept jump. 0 on a plane."""
+        if not self.model.nhfield:
+            return np.zeros(len(xy))
+        side = self.reward_cfg.lipm_ground_window_m
+        return mean_ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res, side)
+
     def camera_pose(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World position (k, 3) and rotation (k, 3, 3; MuJoCo camera axes) of the depth camera."""
         rot_b = quat_to_mat(self.physics.qpos[ids, 3:7])
@@ -325,7 +334,7 @@ class Tron1Env:
             com_pos=s.com_pos,
             com_vel_xy=s.com_vel[:, :2],
             v_cmd_xy_world=rotate_z(self.commands.value, yaw_of(s.base_quat)),
-            ground_height=self.ground_height(s.com_pos[:, :2]),
+            ground_height=self.lipm_ground_height(s.com_pos[:, :2]),
             roll_rate=s.base_ang_vel_b[:, 0],
             pitch_rate=s.base_ang_vel_b[:, 1],
         )

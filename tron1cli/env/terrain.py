@@ -476,3 +476,48 @@ def ground_height(bank_heights, tile_idx, xy, res: float) -> np.ndarray:
     out = np.empty(idx.shape[0], dtype=np.float64)
     _ground_height_kernel(h.reshape(-1), h.shape[1], h.shape[2], idx, pts, 1.0 / float(res), out)
     return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _mean_height_kernel(flat, nr, nc, tile_idx, xy, inv_res, offsets, out):
+    cx = 0.5 * (nc - 1)
+    cy = 0.5 * (nr - 1)
+    m = offsets.shape[0]
+    for n in numba.prange(tile_idx.shape[0]):
+        base = tile_idx[n] * nr * nc
+        acc = 0.0
+        for p in range(m):
+            fx = (xy[n, 0] + offsets[p, 0]) * inv_res + cx
+            fy = (xy[n, 1] + offsets[p, 1]) * inv_res + cy
+            acc += bilerp(flat, base, nr, nc, fx, fy)
+        out[n] = acc / m
+
+
+def window_offsets(side_m: float, res: float) -> np.ndarray:
+    """World-aligned square grid (k, 2) of offsets (m) over ``side_m`` x ``side_m``, centred on 0,
+    spaced at most ``res``; side 0 gives the single point (0, 0)."""
+    if not side_m >= 0.0:
+        raise ValueError(f"window side must be >= 0, got {side_m!r}")
+    k = int(np.ceil(side_m / res - 1e-9)) + 1
+    s = np.linspace(-0.5 * side_m, 0.5 * side_m, k)
+    gx, gy = np.meshgrid(s, s, indexing="ij")
+    return np.ascontiguousarray(np.stack([gx.ravel(), gy.ravel()], axis=1))
+
+
+def mean_ground_height(bank_heights, tile_idx, xy, res: float, side_m: float) -> np.ndarray:
+    """Terrain height (N,) float64 averaged over a world-aligned ``side_m`` square around each of
+    the world points ``xy`` (N, 2) (m), sampled at the bank resolution ``res`` (m) or finer.
+
+    The mean of the continuous bilinear surface at points that move with ``xy``: continuous in
+    ``xy``, and over a staircase a ramp instead of steps (over a window of whole treads, exactly
+    the staircase's mean slope). ``side_m`` 0 is :func:`ground_height` at ``xy``.
+    """
+    h = as_bank(bank_heights)
+    idx = as_tile_idx(tile_idx, h.shape[0])
+    pts = np.ascontiguousarray(xy, dtype=np.float64)
+    if pts.shape != (idx.shape[0], 2):
+        raise ValueError(f"xy must be ({idx.shape[0]}, 2), got {pts.shape}")
+    out = np.empty(idx.shape[0], dtype=np.float64)
+    offsets = window_offsets(side_m, float(res))
+    _mean_height_kernel(h.reshape(-1), h.shape[1], h.shape[2], idx, pts, 1.0 / float(res), offsets, out)
+    return out
