@@ -157,7 +157,13 @@ def test_held_depth_frames_and_scans_after_resets():
         if res.time_out[6]:
             pos, rot = env.camera_pose(np.array([6]))
             fresh = render_depth(
-                env.bank.heights, env.curriculum.tile[[6]], pos, rot, env.camera, env.bank.res
+                env.bank.heights,
+                env.curriculum.tile[[6]],
+                pos,
+                rot,
+                env.camera,
+                env.bank.res,
+                ray_scale=env.depth_ray_scale(np.array([6])),
             )
             if np.array_equal(res.obs["depth"][6], fresh[0]):
                 seen["captured"] += 1

@@ -284,6 +284,11 @@ class Tron1Env:
         rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = c, -s_, s_, c
         return pos, rot_b @ self._cam_rot_b @ rx
 
+    def depth_ray_scale(self, ids: np.ndarray) -> np.ndarray:
+        """Per-env factor (k,) on the depth camera's ray directions from its randomised field of
+        view (1 for the nominal camera; see :func:`sensors.fov_ray_scale`)."""
+        return sensors.fov_ray_scale(self.camera, self.randomizer.camera_fov_delta[ids])
+
     def _refresh_depth(self, scheduled: bool) -> None:
         """A 30 Hz capture (``scheduled``) renders every student's camera. Between captures a
         student reset since the last one holds an empty frame (0 = no return) until the next
@@ -314,6 +319,7 @@ class Tron1Env:
             self.camera,
             self.bank.res,
             max_maps=self._depth_max,
+            ray_scale=self.depth_ray_scale(ids),
         )
         if self.cfg.noise.enabled:
             img = sensors.add_depth_noise(img, self.camera, self.rng, out=img)
