@@ -53,9 +53,11 @@ def test_randomised_quantities_stay_in_range_and_differ_between_envs():
     assert (np.abs(shift) <= [0.03, 0.02, 0.03]).all() and shift.std(axis=0).min() > 0.005
     fric = np.array([m.geom_friction[m.geom("ground").id, 0] for m in ms])
     assert ((fric >= 0.4) & (fric <= 1.2)).all() and fric.std() > 0.1
-    zeta = np.array([m.geom_solref[m.geom("ground").id, 1] for m in ms])
+    zeta = env.randomizer.impact_zeta  # the damping ratio of a foot's impact above 0.5 m/s
     lo, hi = damping_ratio_for_restitution(np.array([0.75, 0.25]))
     assert ((zeta >= lo - 1e-9) & (zeta <= hi + 1e-9)).all() and zeta.std() > 0.02
+    resting = np.array([m.geom_solref[m.geom("foot_L_geom").id] for m in ms])
+    assert np.allclose(resting, [0.02, 1.0])  # feet at rest: MuJoCo's critically damped contact
     kp = np.array([m.actuator_gainprm[0, 0] for m in ms])
     assert ((kp >= 40 * 0.64 - 1e-9) & (kp <= 40 * 1.44 + 1e-9)).all() and kp.std() > 1
     limit = np.array([m.actuator_forcerange[0, 1] for m in ms])

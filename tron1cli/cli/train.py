@@ -69,8 +69,8 @@ def train(
     randomize_skip: str = typer.Option(
         "",
         "--randomize-skip",
-        help="Table III terms to leave out, e.g. restitution (MuJoCo turns it into underdamped contacts: "
-        "untrained robots fall twice as fast).",
+        help="Table III terms to leave out, comma-separated: payload, com_shift, friction, restitution, kp, kd, "
+        "motor_strength, delay, camera, camera_fov.",
     ),
     critic_weights: str = typer.Option(
         "",

@@ -187,6 +187,7 @@ class Tron1Env:
         if late.any():  # system delay: the old target holds until the new one arrives
             self._ctrl[late] = np.broadcast_to(self._prev_targets[:, None, :], self._ctrl.shape)[late]
         self.pusher.tick(self.policy_dt, self.rng)
+        self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
         self._steps_since_reset += 1
