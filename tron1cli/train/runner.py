@@ -38,7 +38,9 @@ class RunConfig:
     """Everything that defines a training run; saved as ``config.json`` and in every checkpoint.
 
     iterations: PPO iterations in total (a resumed run continues to this count); save_every:
-    checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule.
+    checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule;
+    preset: the ``tron1 train --preset`` the run started from (``tron1cli.config.presets``) and
+    preset_overrides: the options given explicitly on top of it.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -47,6 +49,8 @@ class RunConfig:
     gait_prior: bool = True
     iterations: int = 1000
     save_every: int = 50
+    preset: str = "none"
+    preset_overrides: tuple[str, ...] = ()
     #: the reward a saved run was trained with (restored from its config); None: built from
     #: ``ablation`` and ``gait_prior`` with this version's defaults
     saved_reward: RewardConfig | None = field(default=None, compare=False, repr=False)
