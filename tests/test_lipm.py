@@ -163,3 +163,55 @@ def test_stable_reward_strictly_decreases_as_any_error_grows(which: str) -> None
     assert np.all((r > 0.0) & (r <= 1.0))
     # Each error enters the exponent linearly with unit weight.
     np.testing.assert_allclose(r, np.exp(-err), rtol=1e-12)
+
+
+def _upright_climb(speed: float, ground: str) -> np.ndarray:
+    """r_stable per policy step of a robot held upright (no CoM error, no rotation) whose CoM climbs
+    the hardest stairs_up tile at ``speed`` (m/s) along +x, at the standing height above the
+    staircase's mean slope; ``ground`` is ``window`` (the env's LIPM ground) or ``point``."""
+    from tron1cli.env.rewards import RewardConfig
+    from tron1cli.env.terrain import TerrainBank, TerrainConfig, ground_height, mean_ground_height
+
+    cfg, reward = TerrainConfig(), RewardConfig()
+    bank = TerrainBank(("stairs_up",), cfg, seed=0)
+    h, tread, half = cfg.step_height_m[1], cfg.step_tread_m, 0.5 * cfg.platform_m
+    x = np.arange(0.2, 3.0, speed * 0.02)  # one policy step (20 ms) apart
+    xy = np.stack([x, np.full_like(x, 0.1)], axis=1)
+    mean_slope = np.maximum(h * ((x - half) / tread + 0.5), 0.0)  # through the tread middles
+    com = np.column_stack([xy, reward.z_c + mean_slope])
+    tiles = np.full(len(x), bank.tile_index(0, cfg.num_levels - 1, 0))
+    if ground == "window":
+        g = mean_ground_height(bank.heights, tiles, xy, bank.res, reward.lipm_ground_window_m)
+    else:
+        g = ground_height(bank.heights, tiles, xy, bank.res)
+    zero = np.zeros(len(x))
+    return lipm.stable_reward(com[:, :2], com[:, :2], lipm.plane_intercept(com, g), reward.z_c, zero, zero)
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.0])
+def test_r_stable_of_an_upright_stair_climb_has_no_steps(speed: float) -> None:
+    r = _upright_climb(speed, "window")
+    step = np.abs(np.diff(r) / r[:-1])
+    assert step.max() < 0.02  # a few per cent at most between policy steps
+    assert r.min() > 0.9  # on the staircase's slope the intercept stays near z_c
+
+
+def test_point_ground_under_the_com_makes_r_stable_jump_at_stair_edges() -> None:
+    r = _upright_climb(1.0, "point")  # the earlier definition: a 20 cm step at every edge
+    assert np.abs(np.diff(r) / r[:-1]).max() > 0.05
+
+
+def test_mean_ground_height_window_hand_values() -> None:
+    from tron1cli.env.terrain import ground_height, mean_ground_height, window_offsets
+
+    bank = np.zeros((1, 9, 9), dtype=np.float32)
+    bank[0, :, 5:] = 0.2  # a 20 cm step between columns 4 and 5 (x = 0 and x = 0.05 m)
+    idx = np.zeros(3, dtype=np.int64)
+    xy = np.array([[-1.0, 0.0], [0.025, 0.0], [0.125, 0.0]])
+    assert np.allclose(mean_ground_height(bank, idx, xy, 0.05, 0.0), ground_height(bank, idx, xy, 0.05))
+    # a 0.1 m window (3 x 3 samples at -0.05, 0, 0.05 m): far left flat 0; centred mid-riser:
+    # samples at x = -0.025 (0), 0.025 (0.1), 0.075 (0.2) -> 0.1; right: all 0.2 -> 0.2
+    assert np.allclose(mean_ground_height(bank, idx, xy, 0.05, 0.1), [0.0, 0.1, 0.2])
+    assert window_offsets(0.1, 0.05).shape == (9, 2)
+    with pytest.raises(ValueError):
+        window_offsets(-1.0, 0.05)

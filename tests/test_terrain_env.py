@@ -53,9 +53,11 @@ def test_randomised_quantities_stay_in_range_and_differ_between_envs():
     assert (np.abs(shift) <= [0.03, 0.02, 0.03]).all() and shift.std(axis=0).min() > 0.005
     fric = np.array([m.geom_friction[m.geom("ground").id, 0] for m in ms])
     assert ((fric >= 0.4) & (fric <= 1.2)).all() and fric.std() > 0.1
-    zeta = np.array([m.geom_solref[m.geom("ground").id, 1] for m in ms])
+    zeta = env.randomizer.impact_zeta  # the damping ratio of a foot's impact above 0.5 m/s
     lo, hi = damping_ratio_for_restitution(np.array([0.75, 0.25]))
     assert ((zeta >= lo - 1e-9) & (zeta <= hi + 1e-9)).all() and zeta.std() > 0.02
+    resting = np.array([m.geom_solref[m.geom("foot_L_geom").id] for m in ms])
+    assert np.allclose(resting, [0.02, 1.0])  # feet at rest: MuJoCo's critically damped contact
     kp = np.array([m.actuator_gainprm[0, 0] for m in ms])
     assert ((kp >= 40 * 0.64 - 1e-9) & (kp <= 40 * 1.44 + 1e-9)).all() and kp.std() > 1
     limit = np.array([m.actuator_forcerange[0, 1] for m in ms])
@@ -157,7 +159,13 @@ def test_held_depth_frames_and_scans_after_resets():
         if res.time_out[6]:
             pos, rot = env.camera_pose(np.array([6]))
             fresh = render_depth(
-                env.bank.heights, env.curriculum.tile[[6]], pos, rot, env.camera, env.bank.res
+                env.bank.heights,
+                env.curriculum.tile[[6]],
+                pos,
+                rot,
+                env.camera,
+                env.bank.res,
+                ray_scale=env.depth_ray_scale(np.array([6])),
             )
             if np.array_equal(res.obs["depth"][6], fresh[0]):
                 seen["captured"] += 1
@@ -202,3 +210,21 @@ def test_bench_reports_sensor_rates():
         assert res[key] > 0
     assert res["depth_ms_per_image"] == pytest.approx(1e3 / res["depth_images_per_s"])
     assert res["depth_ratio"] == pytest.approx(res["env_depth_steps_per_s"] / res["raw_steps_per_s"])
+
+
+def test_lipm_ground_is_the_windowed_terrain_mean_under_the_com():
+    from tron1cli.env.terrain import mean_ground_height
+
+    env = make("stairs", n=4, max_init_level=9, perception=False, randomization=RandomizationConfig())
+    env.reset()
+    env.step(np.zeros((4, 6)))
+    com_xy = env.state.com_pos[:, :2]
+    side = env.reward_cfg.lipm_ground_window_m
+    expected = mean_ground_height(env.bank.heights, env.curriculum.tile, com_xy, env.bank.res, side)
+    assert side > 0 and np.allclose(env.lipm.z, env.state.com_pos[:, 2] - expected)
+    env.close()
+    flat = make("flat", n=2, perception=False, randomization=RandomizationConfig())
+    flat.reset()
+    flat.step(np.zeros((2, 6)))
+    assert np.array_equal(flat.lipm.z, flat.state.com_pos[:, 2])  # a plane: the CoM height itself
+    flat.close()

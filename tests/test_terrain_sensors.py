@@ -381,3 +381,86 @@ def test_depth_noise_same_whatever_the_thread_count():
         numba.set_num_threads(threads)
     assert np.array_equal(one, add_depth_noise(depth, cam, np.random.default_rng(9)))
     assert np.all(one[0, :2] == 0.0)
+
+
+def test_type_seed_is_stable_and_tiles_depend_on_the_name_only(monkeypatch):
+    from tron1cli.env import terrain
+
+    # pinned: a salted hash() or a list position would change this between processes or edits
+    assert terrain.type_seed("rough") == 772910865764258296
+    assert terrain.type_seed("rough") != terrain.type_seed("rough ")
+    cfg = TerrainConfig(num_levels=2, variants_per_level=1)
+    before = TerrainBank(None, cfg, seed=5)
+
+    def bumps(d: float, c: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+        return rng.uniform(0.0, 0.05 * d, (c.R, c.R))
+
+    # a new type registered in FRONT of every other one, and the old ones in reverse order
+    monkeypatch.setattr(
+        terrain,
+        "TERRAINS",
+        {"bumps": terrain.TerrainType(bumps, "bumps")} | dict(reversed(terrain.TERRAINS.items())),
+    )
+    after = TerrainBank(None, cfg, seed=5)
+    assert after.types[0] == "bumps" and set(after.types) == set(before.types) | {"bumps"}
+    for kind in before.types:
+        for level in range(cfg.num_levels):
+            a = before.heights[before.tile_index(before.types.index(kind), level, 0)]
+            b = after.heights[after.tile_index(after.types.index(kind), level, 0)]
+            assert np.array_equal(a, b), (kind, level)
+    assert "bumps" in terrain.terrain_groups() and "bumps" in terrain.terrain_choices()
+    assert np.any(after.heights[after.tile_index(0, 1, 0)] > 0)  # the new type's own tiles
+
+
+@pytest.mark.parametrize("fov_delta_deg", [0.0, 1.0, -1.0])
+def test_depth_of_a_wider_or_narrower_fov_follows_the_pinhole_model(fov_delta_deg: float):
+    from tron1cli.env.sensors import fov_ray_scale
+
+    # camera 1.5 m above a plane rising along x with slope 0.3, looking straight down (camera axes
+    # = world axes): the ray of pixel column u meets the plane at z-depth H / (1 + s a k), with
+    # a = (u + 0.5 - cx) / fx and k the field-of-view factor on the ray's x and y components
+    cam = DepthCamera(noise_std_m=0.0, noise_range_frac=0.0, hole_prob=0.0)
+    H, s = 1.5, 0.3
+    bank = np.ascontiguousarray(np.broadcast_to(s * COORDS[None, :], (R, R))[None], dtype=np.float32)
+    k = fov_ray_scale(cam, fov_delta_deg)
+    img = render_depth(bank, [0], [[0.0, 0.0, H]], np.eye(3)[None], cam, RES, ray_scale=[k])
+    fx, fy, cx, cy = cam.intrinsics()
+    a = (np.arange(cam.width) + 0.5 - cx) / fx
+    expected = H / (1.0 + s * a * k)
+    assert np.allclose(img[0], expected[None, :], atol=1e-4)
+    # k from the pinhole maths: tan of the half vertical FOV scales with it
+    assert k == pytest.approx(
+        math.tan(math.radians(29.0 + 0.5 * fov_delta_deg)) / math.tan(math.radians(29.0))
+    )
+    if fov_delta_deg:
+        nominal = render_depth(bank, [0], [[0.0, 0.0, H]], np.eye(3)[None], cam, RES)
+        edge = np.abs(img[0, :, 0] - nominal[0, :, 0]).min()
+        assert edge > 5e-3  # the outer columns see the slope farther out (1 deg: about 1 cm here)
+
+
+def test_camera_fov_randomisation_is_per_env_and_in_range():
+    from tron1cli.config import EnvConfig, GaitConfig
+    from tron1cli.env.core import Tron1Env
+    from tron1cli.env.randomization import RandomizationConfig
+
+    rand = RandomizationConfig(terms=("camera_fov",))
+    env = Tron1Env(
+        EnvConfig(
+            num_envs=16,
+            nthread=1,
+            terrain="stairs",
+            perception=True,
+            randomization=rand,
+            gait=GaitConfig(enabled=False),
+            depth_from=0,
+        )
+    )
+    env.reset()
+    d = env.randomizer.camera_fov_delta
+    assert np.all(np.abs(d) <= 1.0) and d.std() > 0.3
+    k = env.depth_ray_scale(np.arange(16))
+    cam = env.camera
+    assert np.allclose(
+        np.degrees(2 * np.arctan(k * math.tan(math.radians(0.5 * cam.fovy_deg)))), cam.fovy_deg + d
+    )
+    env.close()

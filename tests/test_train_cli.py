@@ -58,6 +58,9 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--critic-weights", "speed=2"], 2, "unknown reward group 'speed'"),
         (["--ablation", "single-critic", "--critic-weights", "stable=0.5"], 2, "groups: all"),
         (["--terrain", "stairs", "--randomize-skip", "lava"], 2, "unknown randomisation terms ['lava']"),
+        (["--preset", "fast"], 2, "unknown preset 'fast'; choose from flat, perceptive, paper"),
+        (["--preset", "paper", "--resume"], 2, "--preset starts a new run"),
+        (["--randomize-skip", "restitution"], 2, "needs Table III randomisation on"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):
@@ -185,3 +188,15 @@ def test_default_critic_weights_follow_the_groups(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "b" / "config.json").read_text())["learner"]["critic_weights"] == {}
+
+
+def test_paper_preset_with_overrides_is_recorded_and_printed(tmp_path):
+    r = tron1("train", "--preset", "paper", *SMALL, "--iterations", "1", "--run-dir", str(tmp_path / "p"))
+    assert r.returncode == 0, r.stderr
+    header = " ".join(r.stderr.split())
+    assert "preset paper (overridden: envs, iterations, steps_per_env, hidden)" in header
+    assert "gait prior off" in header and "critic weights equal" in header
+    c = json.loads((tmp_path / "p" / "config.json").read_text())
+    assert (c["preset"], c["gait_prior"], c["learner"]["critic_weights"]) == ("paper", False, {})
+    assert c["env"]["perception"] and c["env"]["pushes"]["enabled"] and c["env"]["terrain"] == "mixed"
+    assert "camera_fov" in c["env"]["randomization"]["terms"] and c["env"]["num_envs"] == 16

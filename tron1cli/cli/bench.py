@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import available_cores, err, fail, out, print_json, resolve_device
+from tron1cli.cli.common import available_cores, err, fail, out, print_json, resolve_device, terrain_help
 
 
 def bench(
@@ -19,9 +21,7 @@ def bench(
         show_default=False,
     ),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
-    terrain: str = typer.Option(
-        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
-    ),
+    terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     depth: bool = typer.Option(
         False,
         "--depth/--no-depth",
@@ -89,13 +89,15 @@ def _bench_train(
     import torch
 
     from tron1cli.benchmark import run_train_bench
+    from tron1cli.config.presets import for_terrain
     from tron1cli.learn import tune_glibc_malloc
-    from tron1cli.train.runner import default_run_config
+    from tron1cli.train.runner import run_config
 
     tune_glibc_malloc()
     torch.set_num_threads(threads)
     try:
-        cfg = default_run_config(terrain, num_envs=envs, seed=seed, nthread=threads, precision=precision)
+        preset = replace(for_terrain(terrain), num_envs=envs)
+        cfg = run_config(preset, seed=seed, nthread=threads, precision=precision)
     except ValueError as e:
         fail(str(e), 2)
     with err.status(f"training {rounds} + 1 iterations of {envs} envs on {terrain}..."):

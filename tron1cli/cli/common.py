@@ -13,6 +13,13 @@ out = Console()
 err = Console(stderr=True)
 
 
+def terrain_help(extra: tuple[str, ...] = ()) -> str:
+    """Help text listing the CLI terrain names of the terrain registry (plus ``extra``)."""
+    from tron1cli.env.terrain import terrain_choices
+
+    return terrain_choices(extra) + "."
+
+
 def fail(message: str, code: int = 1) -> None:
     """Print one line on stderr and exit with ``code`` (1 runtime, 2 usage)."""
     err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)

@@ -8,7 +8,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.cli.common import err, fail, out, print_json, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -20,9 +20,7 @@ def deploy_sim(
     policy: Path = typer.Argument(
         ..., help="Exported policy (.onnx), or a training checkpoint (.pt).", show_default=False
     ),
-    terrain: str = typer.Option(
-        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
-    ),
+    terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     level: int = typer.Option(0, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
     cmd: str | None = typer.Option(
         None, "--cmd", help="Constant command vx,vy,yaw (m/s, m/s, rad/s) [default: 0.5,0,0]."

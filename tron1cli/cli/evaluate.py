@@ -11,7 +11,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json
+from tron1cli.cli.common import err, fail, out, print_json, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -79,9 +79,7 @@ def _fmt(m: dict, pct: bool) -> str:
 
 def eval_cmd(
     policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
-    terrain: str = typer.Option(
-        "all", "--terrain", "-t", help="stairs, slopes, discrete, rough, flat, mixed or all."
-    ),
+    terrain: str = typer.Option("all", "--terrain", "-t", help=terrain_help(("all",))),
     level: int = typer.Option(-1, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
     envs: int = typer.Option(128, "--envs", "-n", min=1, help="Envs per batch (paper: 1024)."),
     steps: int = typer.Option(

@@ -3,13 +3,34 @@
 from __future__ import annotations
 
 import signal
+from dataclasses import replace
 from pathlib import Path
+from types import MappingProxyType
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import available_cores, err, fail, out, resolve_device
+from tron1cli.cli.common import available_cores, err, fail, out, resolve_device, terrain_help
+from tron1cli.config.presets import PRESETS
+from tron1cli.env.randomization import ALL_TERMS
+
+#: the options a preset sets; given explicitly, they override it
+PRESET_OPTIONS = (
+    "terrain",
+    "envs",
+    "iterations",
+    "teacher_ratio",
+    "gait_prior",
+    "steps_per_env",
+    "hidden",
+    "critic_weights",
+    "perception",
+    "randomize",
+    "randomize_skip",
+    "pushes",
+    "ablation",
+)
 
 
 def _fmt(v) -> str:
@@ -17,9 +38,15 @@ def _fmt(v) -> str:
 
 
 def train(
-    terrain: str = typer.Option(
-        "flat", "--terrain", "-t", help="flat, rough, slopes, stairs, discrete or mixed."
+    ctx: typer.Context,
+    preset: str | None = typer.Option(
+        None,
+        "--preset",
+        help=f"Start from a named preset: {', '.join(PRESETS)} [default: flat on flat ground, perceptive "
+        "elsewhere]; options given explicitly override it (the run header lists them).",
+        show_default=False,
     ),
+    terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     envs: int = typer.Option(1024, "--envs", "-n", min=2, help="Parallel environments (teacher + student)."),
     iterations: int = typer.Option(
         None,
@@ -81,8 +108,7 @@ def train(
     randomize_skip: str = typer.Option(
         "",
         "--randomize-skip",
-        help="Table III terms to leave out, e.g. restitution (MuJoCo turns it into underdamped contacts: "
-        "untrained robots fall twice as fast).",
+        help="Table III terms to leave out, comma-separated: " + ", ".join(ALL_TERMS) + ".",
     ),
     critic_weights: str = typer.Option(
         "",
@@ -107,10 +133,25 @@ def train(
     ),
 ) -> None:
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
+    from tron1cli.config.presets import for_terrain, make_preset
+    from tron1cli.env.randomization import PushConfig, RandomizationConfig
     from tron1cli.env.rewards import ABLATIONS, make_reward_config
     from tron1cli.learn import tune_glibc_malloc
-    from tron1cli.train.runner import Trainer, check_run_dir, default_run_config
+    from tron1cli.train.runner import Trainer, check_run_dir, run_config
 
+    given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
+    if resume and preset is not None:
+        fail("--preset starts a new run; --resume continues with the run's own configuration", 2)
+    try:
+        if preset is not None:
+            base = make_preset(preset)
+        else:
+            base = for_terrain(terrain)
+    except ValueError as e:
+        fail(str(e), 2)
+    overridden = tuple(n for n in given if preset is not None or n != "terrain")  # terrain picks the preset
+    terrain = terrain if "terrain" in given else base.terrain
+    ablation = ablation if "ablation" in given else base.ablation
     if ablation not in ABLATIONS:
         fail(f"unknown ablation '{ablation}'; choose from {', '.join(ABLATIONS)}", 2)
     if terrain != "flat":
@@ -120,31 +161,46 @@ def train(
             resolve_terrain(terrain)
         except ValueError as e:
             fail(str(e), 2)
-    try:
-        sizes = tuple(int(x) for x in hidden.split(","))
-        if not sizes or min(sizes) < 1:
-            raise ValueError
-    except ValueError:
-        fail(f"--hidden wants positive integers separated by commas, got '{hidden}'", 2)
+    sizes = base.hidden
+    if "hidden" in given:
+        try:
+            sizes = tuple(int(x) for x in hidden.split(","))
+            if not sizes or min(sizes) < 1:
+                raise ValueError
+        except ValueError:
+            fail(f"--hidden wants positive integers separated by commas, got '{hidden}'", 2)
     from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
     try:
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
-    try:
-        weights = {
-            k.strip(): float(v) for k, v in (kv.split("=") for kv in critic_weights.split(",") if kv.strip())
-        }
-    except ValueError:
-        fail(f"--critic-weights wants GROUP=NUMBER pairs separated by commas, got '{critic_weights}'", 2)
+    gait_prior = gait_prior if "gait_prior" in given else base.gait_prior
     groups = make_reward_config(ablation, gait_prior=gait_prior).groups
-    unknown = sorted(set(weights) - set(groups))
-    if unknown:
-        fail(
-            f"--critic-weights: unknown reward group '{unknown[0]}'; this run's groups: {', '.join(groups)}",
-            2,
-        )
+    if "critic_weights" in given:
+        try:
+            weights = {
+                k.strip(): float(v)
+                for k, v in (kv.split("=") for kv in critic_weights.split(",") if kv.strip())
+            }
+        except ValueError:
+            fail(f"--critic-weights wants GROUP=NUMBER pairs separated by commas, got '{critic_weights}'", 2)
+        unknown = sorted(set(weights) - set(groups))
+        if unknown:
+            known = ", ".join(groups)
+            fail(f"--critic-weights: unknown reward group '{unknown[0]}'; this run's groups: {known}", 2)
+    else:  # the preset's weights of the groups this run has (an ablation may merge them)
+        weights = {g: w for g, w in base.critic_weights.items() if g in groups}
+    randomization = base.randomization
+    if "randomize" in given:
+        randomization = RandomizationConfig.table_iii() if randomize else RandomizationConfig()
+    if "randomize_skip" in given:
+        if not randomization.terms:
+            fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
+        try:
+            randomization = RandomizationConfig.table_iii(skip=_csv(randomize_skip))
+        except ValueError as e:
+            fail(f"--randomize-skip: {e}", 2)
     device = resolve_device(device)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
@@ -152,24 +208,31 @@ def train(
     cfg = None
     if not resume:
         try:
-            cfg = default_run_config(
-                terrain,
-                num_envs=envs,
+            push_cfg = base.pushes
+            if "pushes" in given:
+                push_cfg = PushConfig.moderate() if pushes else PushConfig()
+            chosen = replace(
+                base,
+                terrain=terrain,
+                num_envs=envs if "envs" in given else base.num_envs,
+                iterations=iterations if "iterations" in given else base.iterations,
+                steps_per_env=steps_per_env if "steps_per_env" in given else base.steps_per_env,
+                hidden=sizes,
+                teacher_ratio=teacher_ratio if "teacher_ratio" in given else base.teacher_ratio,
+                gait_prior=gait_prior,
+                critic_weights=MappingProxyType(weights),
+                perception=perception if "perception" in given else base.perception,
+                randomization=randomization,
+                pushes=push_cfg,
+                ablation=ablation,
+            )
+            cfg = run_config(
+                chosen,
                 seed=seed,
                 nthread=threads,
-                gait_prior=gait_prior,
-                perception=perception,
-                randomize=randomize,
-                randomize_skip=_csv(randomize_skip),
-                pushes=pushes,
-                teacher_ratio=teacher_ratio,
-                steps_per_env=steps_per_env,
-                hidden=sizes,
-                critic_weights=weights or None,
-                ablation=ablation,
-                iterations=iterations or 300,
                 save_every=save_every,
                 precision=precision,
+                overrides=overridden,
             )
         except ValueError as e:
             fail(str(e), 2)
@@ -182,8 +245,10 @@ def train(
         )
         return
     err.print(
-        f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher), "
+        f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher) x "
+        f"{c.learner.num_steps_per_env} steps x {c.iterations:,} iterations, {_preset_summary(c)}, "
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
+        f"critic weights {_weights_summary(c.learner.critic_weights)}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
         f"seed {c.env.seed}, {c.env.nthread} threads, learner on {device} in {c.learner.precision} "
@@ -241,6 +306,24 @@ def train(
         t.add_row(label, _fmt(last.get(f"teacher/{key}")), _fmt(last.get(f"student/{key}")))
     out.print(t)
     out.print(f"checkpoint: {run_dir / 'checkpoints' / 'latest.pt'}")
+
+
+def _given(ctx: typer.Context, name: str) -> bool:
+    """Whether option ``name`` was given on the command line (not left at its default)."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name == "COMMANDLINE"
+
+
+def _preset_summary(c) -> str:
+    """'preset paper' or 'preset paper (overridden: envs, iterations)'."""
+    over = f" (overridden: {', '.join(c.preset_overrides)})" if c.preset_overrides else ""
+    return f"preset {c.preset}{over}"
+
+
+def _weights_summary(weights: dict[str, float]) -> str:
+    """'equal' or e.g. 'stable=0.5' (groups not named weigh 1)."""
+    named = {k: v for k, v in weights.items() if v != 1.0}
+    return ", ".join(f"{k}={v:g}" for k, v in named.items()) if named else "equal"
 
 
 def _csv(text: str) -> tuple[str, ...]:

@@ -57,6 +57,7 @@ class _Request:
     cam_pos: np.ndarray  # (1, 3) world, m
     cam_rot: np.ndarray  # (1, 3, 3) world, MuJoCo camera axes
     tile: np.ndarray  # (1,) tile index
+    ray_scale: np.ndarray | None = None  # (1,) randomised field of view (see Tron1Env.depth_ray_scale)
     v_start: float = math.nan  # simulation time at which the renderer started it
     wall_start: float = math.nan  # perf_counter() at that moment
 
@@ -118,7 +119,14 @@ class DepthPipeline:
         """Snapshot env 0's camera pose at simulation time ``t`` (s) and queue it for rendering."""
         ids = np.zeros(1, dtype=np.int64)
         pos, rot = self.env.camera_pose(ids)
-        req = _Request(self._seq, float(t), pos.copy(), rot.copy(), self.env.curriculum.tile[ids].copy())
+        req = _Request(
+            self._seq,
+            float(t),
+            pos.copy(),
+            rot.copy(),
+            self.env.curriculum.tile[ids].copy(),
+            ray_scale=self.env.depth_ray_scale(ids),
+        )
         self._seq += 1
         self.capture_times.append(float(t))
         with self._cond:
@@ -216,7 +224,14 @@ class DepthPipeline:
     def _render(self, req: _Request) -> np.ndarray:
         with self._lock:
             img = sensors.render_depth(
-                self._heights, req.tile, req.cam_pos, req.cam_rot, self.camera, self._res, max_maps=self._maps
+                self._heights,
+                req.tile,
+                req.cam_pos,
+                req.cam_rot,
+                self.camera,
+                self._res,
+                max_maps=self._maps,
+                ray_scale=req.ray_scale,
             )
             if self.noise:
                 img = sensors.add_depth_noise(img, self.camera, self._rng)

@@ -25,7 +25,7 @@ from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.state import RobotState, read_state
-from tron1cli.env.terrain import TerrainBank, ground_height
+from tron1cli.env.terrain import TerrainBank, ground_height, mean_ground_height
 
 EDGE_MARGIN_M = 0.5  #: an env whose base comes this close to its tile's edge ends its episode (time-out)
 
@@ -187,6 +187,7 @@ class Tron1Env:
         if late.any():  # system delay: the old target holds until the new one arrives
             self._ctrl[late] = np.broadcast_to(self._prev_targets[:, None, :], self._ctrl.shape)[late]
         self.pusher.tick(self.policy_dt, self.rng)
+        self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
         self._steps_since_reset += 1
@@ -262,6 +263,15 @@ class Tron1Env:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
         return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)
 
+    def lipm_ground_height(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height (m) of the LIPM constraint plane under world points ``xy`` (N, 2): the
+        terrain averaged over a ``reward_cfg.lipm_ground_window_m`` square (README, eq. 2-3), so
+        that a stair edge passing under the CoM does not make the intercept jump. 0 on a plane."""
+        if not self.model.nhfield:
+            return np.zeros(len(xy))
+        side = self.reward_cfg.lipm_ground_window_m
+        return mean_ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res, side)
+
     def camera_pose(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World position (k, 3) and rotation (k, 3, 3; MuJoCo camera axes) of the depth camera."""
         rot_b = quat_to_mat(self.physics.qpos[ids, 3:7])
@@ -274,6 +284,11 @@ class Tron1Env:
         rx[:, 0, 0] = 1.0
         rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = c, -s_, s_, c
         return pos, rot_b @ self._cam_rot_b @ rx
+
+    def depth_ray_scale(self, ids: np.ndarray) -> np.ndarray:
+        """Per-env factor (k,) on the depth camera's ray directions from its randomised field of
+        view (1 for the nominal camera; see :func:`sensors.fov_ray_scale`)."""
+        return sensors.fov_ray_scale(self.camera, self.randomizer.camera_fov_delta[ids])
 
     def _refresh_depth(self, scheduled: bool) -> None:
         """A 30 Hz capture (``scheduled``) renders every student's camera. Between captures a
@@ -305,6 +320,7 @@ class Tron1Env:
             self.camera,
             self.bank.res,
             max_maps=self._depth_max,
+            ray_scale=self.depth_ray_scale(ids),
         )
         if self.cfg.noise.enabled:
             img = sensors.add_depth_noise(img, self.camera, self.rng, out=img)
@@ -325,7 +341,7 @@ class Tron1Env:
             com_pos=s.com_pos,
             com_vel_xy=s.com_vel[:, :2],
             v_cmd_xy_world=rotate_z(self.commands.value, yaw_of(s.base_quat)),
-            ground_height=self.ground_height(s.com_pos[:, :2]),
+            ground_height=self.lipm_ground_height(s.com_pos[:, :2]),
             roll_rate=s.base_ang_vel_b[:, 0],
             pitch_rate=s.base_ang_vel_b[:, 1],
         )

@@ -9,22 +9,34 @@ term               range                                  where it acts
 payload            -1 .. 3 kg                             base body mass
 com_shift          +/-3, +/-2, +/-3 cm (x, y, z)          base body CoM
 friction           0.4 .. 1.2                             sliding friction of ground and feet
-restitution        0.25 .. 0.75                           contact damping ratio of ground and feet
+restitution        0.25 .. 0.75                           the feet's impacts above the bounce threshold
 kp, kd             x 0.8 .. 1.2                           position actuators' stiffness and damping
 motor_strength     x 0.8 .. 1.2                           actuator gains and torque limit together
 delay              0 .. 20 ms                             the new joint target reaches the motors
                                                           only after this, the old one holds before
 camera             +/-10 mm position, +/-1 deg pitch      the depth camera's mount (per env)
+camera_fov         +/-1 deg field of view                 the depth camera's focal length (per env):
+                                                          vertical FOV 58 +/- 1 deg, the horizontal
+                                                          with it (87 +/- 1.3 deg), train and eval
 =================  =====================================  ==========================================
 
-MuJoCo has no restitution coefficient: a contact is a damped spring, whose coefficient of
-restitution for a damping ratio zeta is e = exp(-pi zeta / sqrt(1 - zeta^2)); the sampled e is
-turned into zeta and written as the contact's damping ratio (time constant 0.02 s). The camera's
-field of view is not randomised per env (the renderer shares one set of intrinsics).
+Restitution, as the paper's simulator has it (README, "Restitution"): PhysX combines the robot's
+sampled restitution e with the terrain material's (``ground_restitution``) by the combine mode of
+higher priority (the terrain's ``multiply`` over the robot's ``average``), and applies the result
+only to contacts that close faster than the bounce threshold (Isaac Lab: 0.5 m/s); slower
+contacts and resting contacts do not bounce. MuJoCo has no restitution: a contact is a damped
+spring whose coefficient of restitution for a damping ratio zeta is
+e = exp(-pi zeta / sqrt(1 - zeta^2)). So every contact keeps MuJoCo's critically damped default
+(e = 0), and for one policy step a foot that is in the air and descending faster than the
+threshold gets the damping ratio of the combined e (:meth:`Randomizer.gate_restitution`); the
+ground's ``solmix`` is made negligible so that the foot's damping ratio is the contact's. The
+earlier mapping (``restitution_model="damping"``: every contact of the feet and the ground
+underdamped with the sampled e, resting contacts included) stays available.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -42,7 +54,14 @@ ALL_TERMS = (
     "motor_strength",
     "delay",
     "camera",
+    "camera_fov",
 )
+
+
+#: policy steps a foot's impact keeps its low damping ratio: the step in which the descending foot
+#: is armed and three more (MuJoCo's contact at the nominal 0.02 s time constant takes about 60 ms
+#: to push a foot back out; measured in tests/test_restitution.py: 2 steps halve the rebound)
+IMPACT_STEPS = 4
 
 
 def _check_terms(terms: tuple[str, ...]) -> None:
@@ -51,9 +70,31 @@ def _check_terms(terms: tuple[str, ...]) -> None:
         raise ValueError(f"unknown randomisation terms {sorted(unknown)}; choose from {', '.join(ALL_TERMS)}")
 
 
+#: PhysX's combine modes of two materials' coefficients
+COMBINE_MODES: dict[str, Callable[[np.ndarray, float], np.ndarray]] = {
+    "average": lambda a, b: 0.5 * (a + b),
+    "min": np.minimum,
+    "multiply": lambda a, b: a * b,
+    "max": np.maximum,
+}
+
+
+def combined_restitution(e_robot: np.ndarray, e_ground: float, mode: str) -> np.ndarray:
+    """Restitution of a robot-ground contact in PhysX: ``mode`` (the terrain's combine mode, which
+    outranks the robot's ``average``) applied to the two materials' coefficients."""
+    return np.asarray(COMBINE_MODES[mode](np.asarray(e_robot, dtype=np.float64), e_ground), dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class RandomizationConfig:
-    """Which Table III terms are on (``terms``) and their ranges (units in the names)."""
+    """Which Table III terms are on (``terms``) and their ranges (units in the names).
+
+    Restitution (see the module docstring): ``ground_restitution`` the terrain material's
+    coefficient (1.0 in LimX's TRON1 Isaac Lab configuration, 0.0 in Isaac Lab's own locomotion
+    terrain), ``restitution_combine`` PhysX's combine mode, ``bounce_threshold_mps`` the closing
+    speed (m/s) below which nothing bounces; ``restitution_model`` ``impact`` (as PhysX) or
+    ``damping`` (the earlier mapping: every foot contact underdamped).
+    """
 
     terms: tuple[str, ...] = ()
     payload_kg: tuple[float, float] = (-1.0, 3.0)
@@ -66,9 +107,20 @@ class RandomizationConfig:
     delay_s: tuple[float, float] = (0.0, 0.02)
     camera_pos_m: float = 0.01
     camera_pitch_deg: float = 1.0
+    camera_fov_deg: float = 1.0
+    ground_restitution: float = 1.0
+    restitution_combine: str = "multiply"
+    bounce_threshold_mps: float = 0.5
+    restitution_model: str = "impact"
 
     def __post_init__(self) -> None:
         _check_terms(self.terms)
+        if self.restitution_combine not in COMBINE_MODES:
+            raise ValueError(f"restitution_combine must be one of {', '.join(COMBINE_MODES)}")
+        if self.restitution_model not in ("impact", "damping"):
+            raise ValueError("restitution_model must be 'impact' or 'damping'")
+        if not 0.0 <= self.ground_restitution <= 1.0 or not self.bounce_threshold_mps >= 0.0:
+            raise ValueError("ground_restitution must lie in [0, 1] and bounce_threshold_mps be >= 0")
 
     @classmethod
     def table_iii(cls, skip: tuple[str, ...] = ()) -> RandomizationConfig:
@@ -86,11 +138,19 @@ def damping_ratio_for_restitution(e: np.ndarray) -> np.ndarray:
     return -L / np.sqrt(np.pi**2 + L**2)
 
 
+def impact_solref(nominal: np.ndarray, zeta: float) -> tuple[float, float]:
+    """MuJoCo ``solref`` with damping ratio ``zeta`` and the stiffness of ``nominal`` (time constant,
+    damping ratio 1): MuJoCo's stiffness grows as 1 / (timeconst zeta)^2, so the time constant is
+    divided by ``zeta`` to keep the contact as stiff as the nominal one and lower only its damping."""
+    return float(nominal[0]) / zeta, zeta
+
+
 class Randomizer:
     """Samples and applies the configured terms to the envs' own models.
 
     Attributes (N rows): ``delay_steps`` physics substeps before a new target acts,
-    ``camera_offset`` (N, 3) m in the base frame, ``camera_pitch`` (N,) rad added to the mount.
+    ``camera_offset`` (N, 3) m in the base frame, ``camera_pitch`` (N,) rad added to the mount,
+    ``camera_fov_delta`` (N,) deg added to the camera's vertical field of view.
     """
 
     def __init__(
@@ -110,7 +170,17 @@ class Randomizer:
         self.delay_steps = np.zeros(n, dtype=np.int64)
         self.camera_offset = np.zeros((n, 3))
         self.camera_pitch = np.zeros(n)
+        self.camera_fov_delta = np.zeros(n)
         self.values: dict[str, np.ndarray] = {}
+        #: per env: damping ratio of a foot's impact above the bounce threshold (1: no bounce)
+        self.impact_zeta = np.ones(n)
+        self._bouncy = np.zeros((n, len(self.contact_geoms)), dtype=bool)
+        self._impact_left = np.zeros((n, len(self.contact_geoms)), dtype=np.int64)
+        self.nominal_solref = m0.geom_solref[self.contact_geoms[0]].copy()
+        self._gated = cfg.on("restitution") and cfg.restitution_model == "impact"
+        if self._gated:
+            for m in models:  # the foot's damping ratio, not a mix with the ground's, sets the contact's
+                m.geom_solmix[self.ground] = 1e-9
 
     def apply(self, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Draw new parameters for envs ``ids`` and write them into their models."""
@@ -126,7 +196,21 @@ class Randomizer:
             else np.zeros((k, 3))
         )
         friction = u(c.friction) if c.on("friction") else None
-        zeta = damping_ratio_for_restitution(u(c.restitution)) if c.on("restitution") else None
+        zeta = None
+        if c.on("restitution"):
+            e = u(c.restitution)
+            if c.restitution_model == "damping":
+                zeta = damping_ratio_for_restitution(e)
+            else:
+                e_eff = combined_restitution(e, c.ground_restitution, c.restitution_combine)
+                bounce = e_eff > 1e-6
+                self.impact_zeta[ids] = np.where(
+                    bounce, damping_ratio_for_restitution(np.clip(e_eff, 1e-6, 0.999)), 1.0
+                )
+                self._bouncy[ids] = False
+                self._impact_left[ids] = 0
+                for i in ids:
+                    self.models[i].geom_solref[self.contact_geoms] = self.nominal_solref
         kp = u(c.kp_scale) if c.on("kp") else ones
         kd = u(c.kd_scale) if c.on("kd") else ones
         strength = u(c.motor_strength) if c.on("motor_strength") else ones
@@ -135,6 +219,8 @@ class Randomizer:
         if c.on("camera"):
             self.camera_offset[ids] = rng.uniform(-c.camera_pos_m, c.camera_pos_m, (k, 3))
             self.camera_pitch[ids] = np.radians(rng.uniform(-c.camera_pitch_deg, c.camera_pitch_deg, k))
+        if c.on("camera_fov"):
+            self.camera_fov_delta[ids] = rng.uniform(-c.camera_fov_deg, c.camera_fov_deg, k)
         for j, i in enumerate(ids):
             m = self.models[i]
             m.body_mass[self.base] = self.nominal_mass + payload[j]
@@ -155,6 +241,28 @@ class Randomizer:
             "kd": kd,
             "motor_strength": strength,
         }
+
+    def gate_restitution(self, foot_in_contact: np.ndarray, foot_vz: np.ndarray) -> int:
+        """Before a policy step: a foot in the air descending faster than the bounce threshold
+        (``foot_vz`` (N, F) m/s, world z) bounces on its impact, which may start in this step
+        and go on into the next (:data:`IMPACT_STEPS` policy steps in all); every other foot
+        contact stays critically damped. Writes the feet's damping ratios that changed and
+        returns how many."""
+        if not self._gated:
+            return 0
+        fast = -foot_vz > self.cfg.bounce_threshold_mps
+        arm = ~foot_in_contact & fast & (self.impact_zeta < 1.0)[:, None]
+        self._impact_left = np.where(
+            arm, IMPACT_STEPS, np.where(foot_in_contact, np.maximum(self._impact_left - 1, 0), 0)
+        )
+        want = self._impact_left > 0
+        envs, feet = np.nonzero(want != self._bouncy)
+        for i, f in zip(envs, feet, strict=True):
+            self.models[i].geom_solref[self.contact_geoms[f]] = (
+                impact_solref(self.nominal_solref, self.impact_zeta[i]) if want[i, f] else self.nominal_solref
+            )
+        self._bouncy = want
+        return len(envs)
 
 
 @dataclass(frozen=True)

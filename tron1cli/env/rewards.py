@@ -71,13 +71,16 @@ class RewardConfig:
     """Which reward terms are on and how they combine.
 
     terms: name -> TermCfg; lipm_kp: gain k_p of eq. 2 (1/s); z_c: upright standing intercept of
-    the CoM plane (m, the CoM height of the default pose); l2_alpha: scale of the l2 velocity
+    the CoM plane (m, the CoM height of the default pose); lipm_ground_window_m: side (m) of the
+    square of terrain under the CoM whose mean height is the plane's ground (0: the one point
+    under the CoM; README, eq. 2-3); l2_alpha: scale of the l2 velocity
     term; ablation: the preset this config came from (recorded with the run).
     """
 
     terms: Mapping[str, TermCfg] = field(default_factory=lambda: MappingProxyType(_paper_terms()))
     lipm_kp: float = 1.0
     z_c: float = robot.COM_HEIGHT_ZERO_POSE
+    lipm_ground_window_m: float = 0.6
     l2_alpha: float = 4.0
     gait_force_scale: float = 20.0
     gait_speed_scale: float = 0.5
@@ -89,6 +92,8 @@ class RewardConfig:
             raise ValueError(f"unknown reward terms: {sorted(unknown)}")
         if not self.terms:
             raise ValueError("a reward needs at least one term")
+        if not self.lipm_ground_window_m >= 0.0:
+            raise ValueError(f"lipm_ground_window_m must be >= 0, got {self.lipm_ground_window_m!r}")
 
     @property
     def groups(self) -> tuple[str, ...]:
@@ -101,6 +106,7 @@ class RewardConfig:
             "terms": {k: vars(v).copy() for k, v in self.terms.items()},
             "lipm_kp": self.lipm_kp,
             "z_c": self.z_c,
+            "lipm_ground_window_m": self.lipm_ground_window_m,
             "l2_alpha": self.l2_alpha,
             "gait_force_scale": self.gait_force_scale,
             "gait_speed_scale": self.gait_speed_scale,

@@ -199,6 +199,14 @@ class DepthCamera:
         return rays
 
 
+def fov_ray_scale(cam: DepthCamera, fovy_delta_deg) -> np.ndarray:
+    """Factor on the rays' x and y components (and 1 / factor on fx, fy) that widens the vertical
+    field of view by ``fovy_delta_deg`` (deg, scalar or (N,)): a focal-length change, so the
+    horizontal field of view follows with the same factor on tan(fov / 2)."""
+    half = np.radians(0.5 * cam.fovy_deg)
+    return np.tan(half + np.radians(0.5 * np.asarray(fovy_delta_deg, dtype=np.float64))) / np.tan(half)
+
+
 @numba.njit(cache=True, parallel=True)
 def _max_maps_kernel(flat, nr, nc, tiles, fine, coarse, fine_min):
     """Max (and min) height over blocks of ``_BLOCK`` cells (samples on the block's edges
@@ -449,7 +457,7 @@ def _march(flat, base, nr, nc, bmax, bmax2, bmin, u, t, fx0, fy0, oz, gx, gy, dz
 
 @numba.njit(cache=True, parallel=True)
 def _render_kernel(
-    flat, nr, nc, tile_idx, uidx, bmax, bmax2, bmin, tops, cam_pos, cam_rot, rays, near, far, res, out
+    flat, nr, nc, tile_idx, uidx, bmax, bmax2, bmin, tops, cam_pos, cam_rot, rays, scale, near, far, res, out
 ):
     n_env = tile_idx.shape[0]
     hgt = rays.shape[0]
@@ -475,9 +483,10 @@ def _render_kernel(
         r20 = cam_rot[n, 2, 0]
         r21 = cam_rot[n, 2, 1]
         r22 = cam_rot[n, 2, 2]
+        k = scale[n]
         for c in range(wid):
-            a = rays[v, c, 0]
-            b = rays[v, c, 1]
+            a = rays[v, c, 0] * k
+            b = rays[v, c, 1] * k
             # world direction = R @ (a, b, -1): unit z-depth per unit t
             gx = (r00 * a + r01 * b - r02) * inv_res
             gy = (r10 * a + r11 * b - r12) * inv_res
@@ -498,11 +507,14 @@ def render_depth(
     out=None,
     *,
     max_maps: DepthMaxMaps | None = None,
+    ray_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Depth images (N, cam.height, cam.width) float32 of the terrain, z-depth in metres.
 
     bank_heights (K, R, R); tile_idx (N,); cam_pos (N, 3) world; cam_rot (N, 3, 3) world, columns
     = camera x (right), y (up), z (backward) as in MuJoCo; res: bank sample spacing in metres.
+    ray_scale (N,): per-env factor on both focal lengths' inverses, i.e. on the ray's x and y
+    components (> 1: a wider field of view; see :func:`fov_ray_scale`); None: the nominal camera.
     Values in [near, far]; no hit within ``far`` reads ``far``. The robot itself is not rendered.
 
     Ray march: each ray walks the height-field grid cell by cell from z-depth ``near`` (or from
@@ -528,6 +540,12 @@ def render_depth(
         raise ValueError(f"out must be C-contiguous float32 {shape}")
     if n == 0:
         return out
+    if ray_scale is None:
+        scale = np.ones(n)
+    else:
+        scale = np.ascontiguousarray(ray_scale, dtype=np.float64).reshape(-1)
+        if scale.shape != (n,) or not np.all(scale > 0):
+            raise ValueError(f"ray_scale must be ({n},) positive factors, got shape {scale.shape}")
     if max_maps is None:
         tiles, uidx = np.unique(idx, return_inverse=True)
         maps = _max_maps(h, tiles)
@@ -550,6 +568,7 @@ def render_depth(
         pos,
         rot,
         cam.pixel_rays(),
+        scale,
         float(cam.near),
         float(cam.far),
         float(res),

@@ -25,7 +25,11 @@ Conventions (shared by the generator, :func:`ground_height` and the sensors):
 * ``border_m`` is a flat rim along the tile edge: the terrain stops changing there (it stays at
   whatever height it reached; 0 for rough and discrete tiles).
 
-Terrain types and how ``difficulty`` d in [0, 1] scales them (d = 1 is the paper's hardest):
+Terrain types are a registry (:data:`TERRAINS`, name -> generator function and CLI group;
+:func:`register_terrain` adds one). Each type's tiles are seeded from its name by a stable hash
+(:func:`type_seed`), so adding a type never changes another's tiles, and the CLI's terrain lists
+come from the registry (:func:`terrain_choices`). The registered types and how ``difficulty``
+d in [0, 1] scales them (d = 1 is the paper's hardest):
 
 * ``flat``: all zeros.
 * ``rough``: uniform noise on a coarse grid (``rough_cell_m``) interpolated bilinearly to the
@@ -46,38 +50,14 @@ Terrain types and how ``difficulty`` d in [0, 1] scales them (d = 1 is the paper
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-TERRAIN_TYPES: tuple[str, ...] = (
-    "flat",
-    "rough",
-    "slope_up",
-    "slope_down",
-    "stairs_up",
-    "stairs_down",
-    "discrete",
-)
-
-TERRAIN_GROUPS: dict[str, tuple[str, ...]] = {
-    "flat": ("flat",),
-    "rough": ("rough",),
-    "slopes": ("slope_up", "slope_down"),
-    "stairs": ("stairs_up", "stairs_down"),
-    "discrete": ("discrete",),
-    "mixed": TERRAIN_TYPES,
-}
-
-
-def resolve_terrain(name: str) -> tuple[str, ...]:
-    """Terrain types for a CLI terrain name (a key of :data:`TERRAIN_GROUPS`)."""
-    try:
-        return TERRAIN_GROUPS[name]
-    except (KeyError, TypeError):
-        choices = ", ".join(TERRAIN_GROUPS)
-        raise ValueError(f"unknown terrain {name!r}; choose from {choices}") from None
+MIXED = "mixed"  #: the CLI terrain name for every registered type, round-robin
 
 
 def _check_range(name: str, rng: tuple[float, float]) -> None:
@@ -173,62 +153,164 @@ def _coords(cfg: TerrainConfig) -> np.ndarray:
     return (np.arange(cfg.R) - 0.5 * (cfg.R - 1)) * cfg.resolution_m
 
 
+# -- the terrain-type registry -----------------------------------------------------------------
+#: A tile generator: (difficulty in [0, 1], config, generator) -> (R, R) heights in metres, index
+#: [row=y, col=x], centred on (0, 0). :func:`make_tile` zeroes the centre platform afterwards.
+TileGenerator = Callable[[float, "TerrainConfig", np.random.Generator], np.ndarray]
+
+
+@dataclass(frozen=True)
+class TerrainType:
+    """One registered terrain type: its tile ``generate`` function and the CLI ``group`` it joins."""
+
+    generate: TileGenerator
+    group: str
+
+
+#: name -> terrain type, in the order types appear in a bank and in the ``mixed`` group. A type's
+#: tiles are seeded from its name (:func:`type_seed`), so adding, removing or reordering entries
+#: never changes another type's tiles.
+TERRAINS: dict[str, TerrainType] = {}
+
+
+def register_terrain(name: str, group: str | None = None) -> Callable[[TileGenerator], TileGenerator]:
+    """Decorator: register a tile generator as terrain type ``name`` in CLI group ``group``
+    (default: its own name). A name registered twice raises ValueError."""
+
+    def add(fn: TileGenerator) -> TileGenerator:
+        if name in TERRAINS or name == MIXED:
+            raise ValueError(f"terrain type {name!r} is already registered")
+        TERRAINS[name] = TerrainType(fn, group or name)
+        return fn
+
+    return add
+
+
+def type_seed(name: str) -> int:
+    """A stable 64-bit seed word of a terrain type's name (the first 8 bytes of its SHA-256;
+    unlike ``hash()``, the same in every process)."""
+    return int.from_bytes(hashlib.sha256(name.encode("utf-8")).digest()[:8], "little")
+
+
+def _rings(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Square-ring geometry of a tile: Chebyshev distance from the centre (R, R), distance walked
+    outward from the platform edge (frozen in the rim), platform half side and rim start (m)."""
+    c = _coords(cfg)
+    d_inf = np.maximum(np.abs(c)[None, :], np.abs(c)[:, None])
+    p = 0.5 * cfg.platform_m
+    outer = cfg.half_extent_m - cfg.border_m
+    return d_inf, np.clip(d_inf, p, outer) - p, p, outer
+
+
+@register_terrain("flat")
+def _flat(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+    return np.zeros((cfg.R, cfg.R))
+
+
+@register_terrain("rough")
+def _rough(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+    R, res = cfg.R, cfg.resolution_m
+    d_inf, _, p, outer = _rings(cfg)
+    amp = _lerp(cfg.rough_amp_m, difficulty)
+    step = max(1, int(round(cfg.rough_cell_m / res)))
+    nc = (R - 1) // step + 2
+    coarse = rng.uniform(-0.5 * amp, 0.5 * amp, size=(nc, nc))
+    f = np.arange(R) / step
+    i0 = np.minimum(f.astype(np.int64), nc - 2)
+    t = f - i0
+    rows = coarse[i0] * (1 - t)[:, None] + coarse[i0 + 1] * t[:, None]  # interpolate along y
+    h = rows[:, i0] * (1 - t)[None, :] + rows[:, i0 + 1] * t[None, :]  # then along x
+    h[(d_inf <= p) | (d_inf > outer)] = 0.0
+    return h
+
+
+def _slope(sign: float) -> TileGenerator:
+    def generate(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+        return sign * _lerp(cfg.slope_tan, difficulty) * _rings(cfg)[1]
+
+    return generate
+
+
+def _stairs(sign: float) -> TileGenerator:
+    def generate(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+        run = _rings(cfg)[1]
+        ring = np.where(run > 0, np.floor(run / cfg.step_tread_m) + 1, 0.0)
+        return sign * _lerp(cfg.step_height_m, difficulty) * ring
+
+    return generate
+
+
+register_terrain("slope_up", "slopes")(_slope(1.0))
+register_terrain("slope_down", "slopes")(_slope(-1.0))
+register_terrain("stairs_up", "stairs")(_stairs(1.0))
+register_terrain("stairs_down", "stairs")(_stairs(-1.0))
+
+
+@register_terrain("discrete")
+def _discrete(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+    R, res = cfg.R, cfg.resolution_m
+    d_inf, _, p, outer = _rings(cfg)
+    h = np.zeros((R, R))
+    hmax = _lerp(cfg.block_height_m, difficulty)
+    lo_size, hi_size = cfg.block_size_m
+    c0 = _coords(cfg)[0]
+    for _ in range(cfg.num_blocks):
+        sx, sy = rng.uniform(lo_size, hi_size, size=2)
+        cx, cy = rng.uniform(-outer, outer, size=2)
+        top = rng.uniform(cfg.block_height_m[0], hmax)
+        j0 = max(0, int(np.ceil((cx - 0.5 * sx - c0) / res)))
+        j1 = min(R, int(np.floor((cx + 0.5 * sx - c0) / res)) + 1)
+        i0 = max(0, int(np.ceil((cy - 0.5 * sy - c0) / res)))
+        i1 = min(R, int(np.floor((cy + 0.5 * sy - c0) / res)) + 1)
+        if i1 > i0 and j1 > j0:
+            np.maximum(h[i0:i1, j0:j1], top, out=h[i0:i1, j0:j1])
+    h[(d_inf <= p) | (d_inf > outer)] = 0.0
+    return h
+
+
+def terrain_groups() -> dict[str, tuple[str, ...]]:
+    """CLI terrain names -> terrain types, derived from :data:`TERRAINS` (groups in registration
+    order, then ``mixed``: every type)."""
+    groups: dict[str, list[str]] = {}
+    for name, t in TERRAINS.items():
+        groups.setdefault(t.group, []).append(name)
+    return {g: tuple(v) for g, v in groups.items()} | {MIXED: tuple(TERRAINS)}
+
+
+def terrain_choices(extra: tuple[str, ...] = ()) -> str:
+    """The CLI terrain names as help text, e.g. ``flat, rough, slopes, stairs, discrete or mixed``."""
+    names = [*terrain_groups(), *extra]
+    return ", ".join(names[:-1]) + " or " + names[-1]
+
+
+#: The registered type names and the CLI groups, derived from the registry at import.
+TERRAIN_TYPES: tuple[str, ...] = tuple(TERRAINS)
+TERRAIN_GROUPS: dict[str, tuple[str, ...]] = terrain_groups()
+
+
+def resolve_terrain(name: str) -> tuple[str, ...]:
+    """Terrain types for a CLI terrain name (a key of :func:`terrain_groups`)."""
+    groups = terrain_groups()
+    try:
+        return groups[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown terrain {name!r}; choose from {', '.join(groups)}") from None
+
+
 def make_tile(kind: str, difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
     """One tile of terrain ``kind`` at ``difficulty`` in [0, 1]: float32 (R, R) heights in metres.
 
     Index ``[row=y, col=x]``, centred on (0, 0); the centre platform is at height 0 (see the module
     docstring). Only ``rough`` and ``discrete`` draw from ``rng``.
     """
-    if kind not in TERRAIN_TYPES:
-        raise ValueError(f"unknown terrain type {kind!r}; choose from {', '.join(TERRAIN_TYPES)}")
+    if kind not in TERRAINS:
+        raise ValueError(f"unknown terrain type {kind!r}; choose from {', '.join(TERRAINS)}")
     if not 0.0 <= difficulty <= 1.0:
         raise ValueError(f"difficulty must be in [0, 1], got {difficulty!r}")
-    R, res = cfg.R, cfg.resolution_m
-    c = _coords(cfg)
-    x = c[None, :]
-    y = c[:, None]
-    d_inf = np.maximum(np.abs(x), np.abs(y))  # square rings around the centre
-    p = 0.5 * cfg.platform_m
-    outer = cfg.half_extent_m - cfg.border_m  # the rim starts beyond this
-    run = np.clip(d_inf, p, outer) - p  # distance walked outward from the platform edge, frozen in the rim
-    h: np.ndarray
-    if kind == "flat":
-        h = np.zeros((R, R))
-    elif kind == "rough":
-        amp = _lerp(cfg.rough_amp_m, difficulty)
-        step = max(1, int(round(cfg.rough_cell_m / res)))
-        nc = (R - 1) // step + 2
-        coarse = rng.uniform(-0.5 * amp, 0.5 * amp, size=(nc, nc))
-        f = np.arange(R) / step
-        i0 = np.minimum(f.astype(np.int64), nc - 2)
-        t = f - i0
-        rows = coarse[i0] * (1 - t)[:, None] + coarse[i0 + 1] * t[:, None]  # interpolate along y
-        h = rows[:, i0] * (1 - t)[None, :] + rows[:, i0 + 1] * t[None, :]  # then along x
-        h[(d_inf <= p) | (d_inf > outer)] = 0.0
-    elif kind in ("slope_up", "slope_down"):
-        sign = 1.0 if kind == "slope_up" else -1.0
-        h = sign * _lerp(cfg.slope_tan, difficulty) * run
-    elif kind in ("stairs_up", "stairs_down"):
-        sign = 1.0 if kind == "stairs_up" else -1.0
-        ring = np.where(run > 0, np.floor(run / cfg.step_tread_m) + 1, 0.0)
-        h = sign * _lerp(cfg.step_height_m, difficulty) * ring
-    else:  # discrete
-        h = np.zeros((R, R))
-        hmax = _lerp(cfg.block_height_m, difficulty)
-        lo_size, hi_size = cfg.block_size_m
-        c0 = c[0]
-        for _ in range(cfg.num_blocks):
-            sx, sy = rng.uniform(lo_size, hi_size, size=2)
-            cx, cy = rng.uniform(-outer, outer, size=2)
-            top = rng.uniform(cfg.block_height_m[0], hmax)
-            j0 = max(0, int(np.ceil((cx - 0.5 * sx - c0) / res)))
-            j1 = min(R, int(np.floor((cx + 0.5 * sx - c0) / res)) + 1)
-            i0 = max(0, int(np.ceil((cy - 0.5 * sy - c0) / res)))
-            i1 = min(R, int(np.floor((cy + 0.5 * sy - c0) / res)) + 1)
-            if i1 > i0 and j1 > j0:
-                np.maximum(h[i0:i1, j0:j1], top, out=h[i0:i1, j0:j1])
-        h[(d_inf <= p) | (d_inf > outer)] = 0.0
-    h[d_inf <= p] = 0.0
+    h = np.array(TERRAINS[kind].generate(difficulty, cfg, rng), dtype=np.float64)
+    if h.shape != (cfg.R, cfg.R):
+        raise ValueError(f"terrain {kind!r} generated shape {h.shape}, expected {(cfg.R, cfg.R)}")
+    h[_rings(cfg)[0] <= 0.5 * cfg.platform_m] = 0.0
     return np.ascontiguousarray(h, dtype=np.float32)
 
 
@@ -237,22 +319,23 @@ class TerrainBank:
 
     Tile ``k`` has type ``types[kind[k]]``, level ``level[k]`` and variant ``variant[k]``, ordered
     ``k = (kind_idx * num_levels + level) * variants_per_level + variant``. Every tile is drawn from
-    its own generator seeded by (seed, type, level, variant), so the same seed gives the same bank
-    and a tile does not depend on which other types are in the bank.
+    its own generator seeded by (seed, :func:`type_seed` of the type's name, level, variant), so the
+    same seed gives the same bank and a tile depends neither on which other types are in the bank
+    nor on which types are registered. ``types`` None: every registered type.
     """
 
     def __init__(
         self,
-        types: tuple[str, ...] | list[str] = TERRAIN_TYPES,
+        types: tuple[str, ...] | list[str] | None = None,
         cfg: TerrainConfig | None = None,
         seed: int = 0,
     ) -> None:
-        types = tuple(types)
+        types = tuple(TERRAINS) if types is None else tuple(types)
         if not types:
             raise ValueError("a terrain bank needs at least one terrain type")
         for t in types:
-            if t not in TERRAIN_TYPES:
-                raise ValueError(f"unknown terrain type {t!r}; choose from {', '.join(TERRAIN_TYPES)}")
+            if t not in TERRAINS:
+                raise ValueError(f"unknown terrain type {t!r}; choose from {', '.join(TERRAINS)}")
         if len(set(types)) != len(types):
             raise ValueError(f"terrain types repeat: {types!r}")
         seed = int(seed)
@@ -271,7 +354,7 @@ class TerrainBank:
         for k in range(K):
             name = types[self.kind[k]]
             lvl = int(self.level[k])
-            rng = np.random.default_rng([seed, TERRAIN_TYPES.index(name), lvl, int(self.variant[k])])
+            rng = np.random.default_rng([seed, type_seed(name), lvl, int(self.variant[k])])
             self.heights[k] = make_tile(name, difficulty(lvl, L), cfg, rng)
 
     @classmethod
@@ -392,4 +475,49 @@ def ground_height(bank_heights, tile_idx, xy, res: float) -> np.ndarray:
         raise ValueError(f"xy must be ({idx.shape[0]}, 2), got {pts.shape}")
     out = np.empty(idx.shape[0], dtype=np.float64)
     _ground_height_kernel(h.reshape(-1), h.shape[1], h.shape[2], idx, pts, 1.0 / float(res), out)
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _mean_height_kernel(flat, nr, nc, tile_idx, xy, inv_res, offsets, out):
+    cx = 0.5 * (nc - 1)
+    cy = 0.5 * (nr - 1)
+    m = offsets.shape[0]
+    for n in numba.prange(tile_idx.shape[0]):
+        base = tile_idx[n] * nr * nc
+        acc = 0.0
+        for p in range(m):
+            fx = (xy[n, 0] + offsets[p, 0]) * inv_res + cx
+            fy = (xy[n, 1] + offsets[p, 1]) * inv_res + cy
+            acc += bilerp(flat, base, nr, nc, fx, fy)
+        out[n] = acc / m
+
+
+def window_offsets(side_m: float, res: float) -> np.ndarray:
+    """World-aligned square grid (k, 2) of offsets (m) over ``side_m`` x ``side_m``, centred on 0,
+    spaced at most ``res``; side 0 gives the single point (0, 0)."""
+    if not side_m >= 0.0:
+        raise ValueError(f"window side must be >= 0, got {side_m!r}")
+    k = int(np.ceil(side_m / res - 1e-9)) + 1
+    s = np.linspace(-0.5 * side_m, 0.5 * side_m, k)
+    gx, gy = np.meshgrid(s, s, indexing="ij")
+    return np.ascontiguousarray(np.stack([gx.ravel(), gy.ravel()], axis=1))
+
+
+def mean_ground_height(bank_heights, tile_idx, xy, res: float, side_m: float) -> np.ndarray:
+    """Terrain height (N,) float64 averaged over a world-aligned ``side_m`` square around each of
+    the world points ``xy`` (N, 2) (m), sampled at the bank resolution ``res`` (m) or finer.
+
+    The mean of the continuous bilinear surface at points that move with ``xy``: continuous in
+    ``xy``, and over a staircase a ramp instead of steps (over a window of whole treads, exactly
+    the staircase's mean slope). ``side_m`` 0 is :func:`ground_height` at ``xy``.
+    """
+    h = as_bank(bank_heights)
+    idx = as_tile_idx(tile_idx, h.shape[0])
+    pts = np.ascontiguousarray(xy, dtype=np.float64)
+    if pts.shape != (idx.shape[0], 2):
+        raise ValueError(f"xy must be ({idx.shape[0]}, 2), got {pts.shape}")
+    out = np.empty(idx.shape[0], dtype=np.float64)
+    offsets = window_offsets(side_m, float(res))
+    _mean_height_kernel(h.reshape(-1), h.shape[1], h.shape[2], idx, pts, 1.0 / float(res), offsets, out)
     return out

@@ -46,7 +46,12 @@ def warm_start(model: nn.Module, source: Mapping[str, torch.Tensor]) -> WarmStar
             elif src.shape == dst.shape:
                 dst.copy_(src)
                 report.copied.append(name)
-            elif src.ndim == 2 and dst.ndim == 2 and src.shape[0] == dst.shape[0] and src.shape[1] < dst.shape[1]:
+            elif (
+                src.ndim == 2
+                and dst.ndim == 2
+                and src.shape[0] == dst.shape[0]
+                and src.shape[1] < dst.shape[1]
+            ):
                 dst.zero_()
                 dst[:, : src.shape[1]] = src
                 report.widened.append(name)
@@ -54,3 +59,8 @@ def warm_start(model: nn.Module, source: Mapping[str, torch.Tensor]) -> WarmStar
                 report.fresh.append(name)
     model.load_state_dict(target)
     return report
+
+
+def _wider_inputs(src: torch.Tensor, dst: torch.Tensor) -> bool:
+    """A linear layer's weight (out, in) with the same outputs and more inputs."""
+    return src.ndim == dst.ndim == 2 and src.shape[0] == dst.shape[0] and src.shape[1] < dst.shape[1]

@@ -24,10 +24,10 @@ import torch
 
 from tron1cli import __version__
 from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.randomization import PushConfig, RandomizationConfig
-from tron1cli.env.rewards import STABLE, RewardConfig, make_reward_config
+from tron1cli.env.rewards import RewardConfig, make_reward_config
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
@@ -39,7 +39,9 @@ class RunConfig:
     """Everything that defines a training run; saved as ``config.json`` and in every checkpoint.
 
     iterations: PPO iterations in total (a resumed run continues to this count); save_every:
-    checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule.
+    checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule;
+    preset: the ``tron1 train --preset`` the run started from (``tron1cli.config.presets``) and
+    preset_overrides: the options given explicitly on top of it.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -48,6 +50,8 @@ class RunConfig:
     gait_prior: bool = True
     iterations: int = 1000
     save_every: int = 50
+    preset: str = "none"
+    preset_overrides: tuple[str, ...] = ()
     #: the reward a saved run was trained with (restored from its config); None: built from
     #: ``ablation`` and ``gait_prior`` with this version's defaults
     saved_reward: RewardConfig | None = field(default=None, compare=False, repr=False)
@@ -78,71 +82,50 @@ class RunConfig:
         return replace(cfg, saved_reward=RewardConfig.from_dict(reward)) if reward else cfg
 
 
-#: weight of the stability critic's normalised advantage (the locomotion one has 1): with 1, the
-#: 20-min flat run tracked 0.43 m/s; with 0.5, it tracked about 0.3 m/s (README, policies/README.md)
-DEFAULT_STABLE_WEIGHT = 0.5
-
-
-def default_run_config(
-    terrain: str = "flat",
-    num_envs: int = 1024,
+def run_config(
+    preset: TrainPreset,
     seed: int = 0,
     nthread: int = 2,
-    *,
-    gait_prior: bool = True,
-    perception: bool | None = None,
-    randomize: bool | None = None,
-    randomize_skip: tuple[str, ...] = (),
-    pushes: bool | None = None,
-    teacher_ratio: float = 0.5,
-    steps_per_env: int = 24,
-    hidden: tuple[int, ...] = (256, 128, 64),
-    critic_weights: dict[str, float] | None = None,
-    ablation: str = "none",
-    iterations: int = 300,
     save_every: int = 50,
     precision: str = "fp32",
+    overrides: tuple[str, ...] = (),
 ) -> RunConfig:
-    """The run ``tron1 train`` makes from its options (ValueError for invalid values).
+    """The run a preset (with any options already applied to it) describes; ValueError if invalid.
 
-    Off flat ground perception (heightmap for teachers, 30 Hz depth for students), Table III
-    randomisation and moderate pushes are on unless switched off (None: that default); flat ground
-    is the blind quick start. critic_weights None: the stability group weighted
-    :data:`DEFAULT_STABLE_WEIGHT`, every other group 1.
+    The preset's critic weights are kept for the reward groups the run has (an ablation may merge
+    them); teachers see the heightmap, students the depth image. overrides: the options given on
+    top of the preset, recorded with the run.
     """
-    rough = terrain != "flat"
-    groups = make_reward_config(ablation, gait_prior=gait_prior).groups
-    if critic_weights is None:
-        critic_weights = {STABLE: DEFAULT_STABLE_WEIGHT} if STABLE in groups else {}
+    groups = make_reward_config(preset.ablation, gait_prior=preset.gait_prior).groups
     env_cfg = EnvConfig(
-        num_envs=num_envs,
+        num_envs=preset.num_envs,
         seed=seed,
-        terrain=terrain,
+        terrain=preset.terrain,
         nthread=nthread,
-        gait=GaitConfig(enabled=gait_prior),
-        perception=rough if perception is None else perception,
-        depth_from=int(round(num_envs * teacher_ratio)),  # students see depth, teachers the heightmap
-        randomization=RandomizationConfig.table_iii(skip=randomize_skip)
-        if (rough if randomize is None else randomize)
-        else RandomizationConfig(),
-        pushes=PushConfig.moderate() if (rough if pushes is None else pushes) else PushConfig(),
+        gait=GaitConfig(enabled=preset.gait_prior),
+        perception=preset.perception,
+        depth_from=int(round(preset.num_envs * preset.teacher_ratio)),
+        randomization=preset.randomization,
+        pushes=preset.pushes,
     )
     learner_cfg = replace(
         LearnerConfig(),
-        teacher_ratio=teacher_ratio,
-        num_steps_per_env=steps_per_env,
-        actor_hidden=hidden,
-        critic_hidden=hidden,
-        critic_weights=critic_weights,
+        teacher_ratio=preset.teacher_ratio,
+        num_steps_per_env=preset.steps_per_env,
+        actor_hidden=preset.hidden,
+        critic_hidden=preset.hidden,
+        critic_weights={g: w for g, w in preset.critic_weights.items() if g in groups},
         precision=precision,
     )
     return RunConfig(
         env=env_cfg,
         learner=learner_cfg,
-        ablation=ablation,
-        gait_prior=gait_prior,
-        iterations=iterations,
+        ablation=preset.ablation,
+        gait_prior=preset.gait_prior,
+        iterations=preset.iterations,
         save_every=save_every,
+        preset=preset.name,
+        preset_overrides=tuple(overrides),
     )
 
 

@@ -1,0 +1,29 @@
+"""Training presets: one registry entry per named factory; the paper's sizes and method."""
+
+import pytest
+
+from tron1cli.config.presets import PRESETS, make_preset
+from tron1cli.env.randomization import ALL_TERMS, PushConfig
+
+
+def test_registry_holds_the_named_factories():
+    assert list(PRESETS) == ["flat", "perceptive", "paper"]
+    for name, factory in PRESETS.items():
+        assert factory().name == name and factory() == factory()  # fresh, equal copies
+    with pytest.raises(ValueError, match="choose from flat, perceptive, paper"):
+        make_preset("fast")
+
+
+def test_paper_preset_is_the_papers_method_and_sizes():
+    p = make_preset("paper")
+    assert (p.num_envs, p.steps_per_env, p.iterations, p.teacher_ratio) == (2048, 24, 10_000, 0.5)
+    assert not p.gait_prior and dict(p.critic_weights) == {} and p.ablation == "none"
+    assert p.perception and p.terrain == "mixed"
+    assert p.randomization.terms == ALL_TERMS and p.pushes == PushConfig.moderate()
+
+
+def test_flat_preset_is_the_quick_start():
+    p = make_preset("flat")
+    assert p.terrain == "flat" and p.gait_prior and dict(p.critic_weights) == {"stable": 0.5}
+    assert not p.perception and not p.randomization.terms and not p.pushes.enabled
+    assert (p.num_envs, p.iterations) == (1024, 300)
