@@ -32,6 +32,9 @@ def test_help_lists_only_working_commands():
         ("bench", "--envs", "many"),
         ("bench", "--rounds", "0"),
         ("bench", "--bogus"),
+        ("bench", "--train", "--precision", "fp16"),
+        ("train", "--device", "tpu"),
+        ("train", "--precision", "fp8"),
         ("no-such-command",),
     ],
 )
@@ -53,3 +56,31 @@ def test_bench_json():
     assert res["raw_steps_per_s"] > 0 and 0 < res["ratio"] < 2
     lo, hi = res["ratio_spread"]
     assert lo <= res["ratio"] <= hi  # the ratio of medians lies within the per-round ratios
+
+
+def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
+    r = tron1("bench", "--train", "--envs", "16", "--rounds", "2", "--threads", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["num_envs"] == 16 and res["rounds"] == 2 and res["nthread"] == 1
+    assert res["terrain"] == "flat" and res["perception"] is False and res["precision"] == "fp32"
+    steps, raw = 16 * res["steps_per_env"], res["raw_steps_per_s"]
+    assert res["collect_steps_per_s"] == pytest.approx(steps / res["collect_s"])
+    assert res["learn_over_collect"] == pytest.approx(res["learn_s"] / res["collect_s"])
+    for part in ("train", "collect", "learn"):
+        assert res[f"{part}_ratio"] == pytest.approx(res[f"{part}_steps_per_s"] / raw)
+        lo, hi = res[f"{part}_ratio_spread"]
+        assert lo <= res[f"{part}_ratio"] <= hi
+    assert res["train_steps_per_s"] < min(res["collect_steps_per_s"], res["learn_steps_per_s"])
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
+def test_device_cuda_without_a_gpu_is_one_line():
+    r = tron1("train", "--device", "cuda", "--iterations", "1")
+    assert r.returncode == 2 and "torch sees no CUDA GPU" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU")
+def test_train_on_cuda(tmp_path):
+    r = tron1("train", "--device", "cuda", "--envs", "16", "--iterations", "1", "--run-dir", str(tmp_path))
+    assert r.returncode == 0, r.stderr

@@ -7,6 +7,8 @@ CNN features of held 30 Hz frames at collection, and the shared features of the 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import torch
 from test_learn_cts import GROUPS, HW, N, P, fake_obs, make
@@ -105,3 +107,22 @@ def test_image_path_shares_features_of_held_frames_exactly():
     g_plain = torch.autograd.grad((plain * weights).sum(), params)
     for a, b in zip(g_shared, g_plain, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+
+
+def test_bf16_update_moves_the_weights_as_fp32_does():
+    """bfloat16 products (8-bit mantissa) change the update by about a per cent, not its direction."""
+    before = make(DIMS, seed=5).model.state_dict()
+    deltas = {}
+    for precision in ("fp32", "bf16"):
+        learner = make(DIMS, seed=5)
+        learner.cfg = replace(learner.cfg, precision=precision)
+        last = rollout(learner, np.random.default_rng(6))
+        learner.update(last)
+        after = learner.model.state_dict()
+        deltas[precision] = torch.cat(
+            [(after[k] - before[k]).flatten() for k in before if before[k].dtype == torch.float32]
+        )
+    a, b = deltas["fp32"], deltas["bf16"]
+    assert a.norm() > 0
+    assert torch.nn.functional.cosine_similarity(a, b, dim=0) > 0.98
+    assert (a - b).norm() / a.norm() < 0.2

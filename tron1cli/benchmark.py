@@ -158,7 +158,8 @@ def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") 
     Each round trains one iteration, recording the physics state and controls of its T env steps,
     then replays them through ``mujoco.rollout`` alone (the raw rate). Returns the median rates of
     the whole iteration, its collection and its learning (env steps per second of each part) and
-    each as a ratio of the raw rate, with the per-round spread ``[min, max]`` of every ratio.
+    each as a ratio of the raw rate, with the per-round spread ``[min, max]`` of every ratio. Rates
+    are env steps over the median seconds of their rounds.
     """
     import tempfile
     from pathlib import Path
@@ -205,10 +206,8 @@ def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") 
         finally:
             trainer.close()
     steps = T * n
-    rates = {
-        k: steps / np.array(v)
-        for k, v in (("raw", raw), ("train", whole), ("collect", collect), ("learn", learn))
-    }
+    seconds = {"raw": raw, "train": whole, "collect": collect, "learn": learn}
+    rates = {k: steps / np.array(v) for k, v in seconds.items()}
     res = {
         "num_envs": n,
         "steps_per_env": T,
@@ -218,12 +217,12 @@ def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") 
         "nthread": cfg.env.nthread,
         "device": device,
         "precision": cfg.learner.precision,
-        "raw_steps_per_s": float(np.median(rates["raw"])),
+        "raw_steps_per_s": steps / float(np.median(raw)),
         "collect_s": float(np.median(collect)),
         "learn_s": float(np.median(learn)),
     }
     for k in ("train", "collect", "learn"):
-        res[f"{k}_steps_per_s"] = float(np.median(rates[k]))
+        res[f"{k}_steps_per_s"] = steps / float(np.median(seconds[k]))
         res[f"{k}_ratio"] = res[f"{k}_steps_per_s"] / res["raw_steps_per_s"]
         res[f"{k}_ratio_spread"] = _spread(rates[k] / rates["raw"])
     res["learn_over_collect"] = res["learn_s"] / res["collect_s"]

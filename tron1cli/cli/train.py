@@ -63,6 +63,13 @@ def train(
     resume: bool = typer.Option(
         False, "--resume", help="Continue the run in --run-dir from its last checkpoint."
     ),
+    init: Path | None = typer.Option(
+        None,
+        "--init",
+        help="Start a new run from this checkpoint's weights wherever the shapes agree (a blind "
+        "policy into a perceptive run: the new inputs' weights start at zero).",
+        show_default=False,
+    ),
     teacher_ratio: float = typer.Option(
         0.5, "--teacher-ratio", min=0.0, max=1.0, help="Share of teacher envs."
     ),
@@ -236,7 +243,11 @@ def train(
             )
         except ValueError as e:
             fail(str(e), 2)
-    trainer = Trainer(run_dir, cfg, resume=resume, iterations=iterations, device=device, threads=threads)
+    if init is not None and resume:
+        fail("--init starts a new run from other weights; --resume continues this one", 2)
+    trainer = Trainer(
+        run_dir, cfg, resume=resume, iterations=iterations, device=device, threads=threads, init=init
+    )
     c = trainer.cfg
     if trainer.iteration >= c.iterations:
         trainer.close()
@@ -252,7 +263,10 @@ def train(
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
         f"seed {c.env.seed}, {c.env.nthread} threads, learner on {device} in {c.learner.precision} "
-        f"-> {run_dir}" + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+        f"-> {run_dir}"
+        + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+        + (f"; started from {c.init_from}" if c.init_from else "")
+        + (f": {trainer.warm_start.summary()}" if trainer.warm_start else "")
     )
     progress = Progress(
         TextColumn("[bold]iter"),

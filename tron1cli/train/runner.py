@@ -30,6 +30,7 @@ from tron1cli.env.core import Tron1Env
 from tron1cli.env.rewards import RewardConfig, make_reward_config
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
+from tron1cli.learn.warm_start import WarmStart, warm_start
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
 from tron1cli.train.metrics import EpisodeStats
 
@@ -41,7 +42,8 @@ class RunConfig:
     iterations: PPO iterations in total (a resumed run continues to this count); save_every:
     checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule;
     preset: the ``tron1 train --preset`` the run started from (``tron1cli.config.presets``) and
-    preset_overrides: the options given explicitly on top of it.
+    preset_overrides: the options given explicitly on top of it; init_from: the checkpoint whose
+    weights the run started from (``tron1 train --init``; None: a fresh initialisation).
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -52,6 +54,7 @@ class RunConfig:
     save_every: int = 50
     preset: str = "none"
     preset_overrides: tuple[str, ...] = ()
+    init_from: str | None = None
     #: the reward a saved run was trained with (restored from its config); None: built from
     #: ``ablation`` and ``gait_prior`` with this version's defaults
     saved_reward: RewardConfig | None = field(default=None, compare=False, repr=False)
@@ -152,6 +155,8 @@ class Trainer:
     its saved configuration, up to ``iterations`` in total when given (else the saved total).
     device: where the learner computes (``cpu`` or ``cuda``); the env core always runs on the CPU.
     threads: physics and torch threads of a resumed run (a new run takes ``cfg.env.nthread``).
+    init: a checkpoint whose weights a new run starts from wherever the shapes agree
+    (:mod:`tron1cli.learn.warm_start`).
     """
 
     def __init__(
@@ -162,11 +167,15 @@ class Trainer:
         iterations: int | None = None,
         device: str = "cpu",
         threads: int | None = None,
+        init: Path | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
         self.metrics_path = self.run_dir / "metrics.jsonl"
         state = None
+        if init is not None and resume:
+            raise UsageError("--init starts a new run from other weights; --resume continues this one")
+        source = load_checkpoint(init) if init is not None else None
         if resume:
             state = load_checkpoint(self.ckpt_dir / "latest.pt")
             cfg = RunConfig.from_dict(json.loads(state["config"]))
@@ -194,6 +203,13 @@ class Trainer:
         self.iteration = 0
         self.env_steps = 0
         self.wall_s = 0.0
+        #: what --init copied (None without it, and on resume)
+        self.warm_start: WarmStart | None = None
+        if source is not None:
+            self.warm_start = warm_start(self.learner.model, source["learner"]["model"])
+            if not self.warm_start.copied and not self.warm_start.widened:
+                raise Tron1Error(f"--init {init}: the checkpoint shares no weights with this run's networks")
+            self.cfg = cfg = replace(cfg, init_from=f"{init} (iteration {int(source['iteration'])})")
         if state is not None:
             self.learner.load_state_dict(state["learner"])
             self.iteration = int(state["iteration"])
