@@ -124,5 +124,5 @@ def test_bf16_update_moves_the_weights_as_fp32_does():
         )
     a, b = deltas["fp32"], deltas["bf16"]
     assert a.norm() > 0
-    assert torch.nn.functional.cosine_similarity(a, b, dim=0) > 0.98
-    assert (a - b).norm() / a.norm() < 0.2
+    assert torch.nn.functional.cosine_similarity(a, b, dim=0) > 0.999
+    assert (a - b).norm() / a.norm() < 0.05
