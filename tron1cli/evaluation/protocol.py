@@ -112,7 +112,7 @@ def eval_terrain_config(cfg: TerrainConfig, window_s: float, speed_mps: float) -
     reach = window_s * (speed_mps + SPEED_SLACK_MPS)
     half = reach + EDGE_MARGIN_M + cfg.border_m + cfg.resolution_m
     samples = math.ceil(2.0 * half / cfg.resolution_m - 1e-9)
-    side = max(cfg.tile_size_m, samples * cfg.resolution_m)
+    side = max(cfg.tile_size_m, round(samples * cfg.resolution_m, 9))
     if side == cfg.tile_size_m:
         return cfg
     area = (side - 2 * cfg.border_m) ** 2 / (cfg.tile_size_m - 2 * cfg.border_m) ** 2
@@ -303,7 +303,7 @@ def run_batch(
             left,
             exposure,
             tile_m=env.bank.size,
-            edge_m=float(env.edge),
+            edge_m=round(float(env.edge), 9),
             max_reach_m=reach,
             unstable_resets=env.unstable_count,
         )
