@@ -118,6 +118,7 @@ def eval_cmd(
     speeds: list[str] | None = typer.Option(
         None,
         "--speeds",
+        metavar="[DIM:]LIST",
         help="Also success rate by commanded speed (Fig. 5), per velocity dimension: DIM:LIST with "
         "DIM vx or vy (m/s) or yaw (rad/s), e.g. --speeds vx:0.25,0.5 --speeds yaw:0.5; "
         "a bare list is vx. Repeatable; within the policy's training command range.",
