@@ -52,7 +52,8 @@ EVAL_TERRAINS = ("stairs", "slopes", "discrete", "rough", "flat")
 TERRAIN_ALIASES = {"slope": "slopes", "stair": "stairs"}
 
 #: how much faster than its fastest command a robot is assumed to move when the eval tile is
-#: sized (m/s); the shipped flat policy's fastest env covered well under its command (see README)
+#: sized (m/s). Measured on the shipped flat policy (1024 envs, 10 s): the farthest env got
+#: 11.1 m from the centre on level-0 stairs (1.11 m/s on average; top command 1.12 m/s)
 SPEED_SLACK_MPS = 0.5
 
 
