@@ -1,15 +1,31 @@
-"""``tron1 eval`` and ``tron1 push-test``: protocol pieces, determinism, JSON contract, bad input."""
+"""``tron1 eval`` and ``tron1 push-test``: protocol pieces, the full window, speed sweeps per
+velocity dimension, determinism, JSON contract, bad input."""
 
 from __future__ import annotations
 
+import csv
 import json
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import tron1
 
-from tron1cli.cli.evaluate import parse_groups
-from tron1cli.evaluation.protocol import EvalSpec, aggregate, resolve_eval_terrains, run_batch
+from tron1cli.cli.evaluate import parse_groups, parse_speeds
+from tron1cli.config.env import CommandConfig
+from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
+from tron1cli.env.terrain import TerrainConfig
+from tron1cli.evaluation.protocol import (
+    EvalSpec,
+    aggregate,
+    check_speed,
+    eval_terrain_config,
+    make_env,
+    resolve_eval_terrains,
+    run_batch,
+    top_speed,
+)
 from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, push_wrenches
 from tron1cli.policy.runtime import load_policy
 
@@ -83,6 +99,8 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
         "20",
         "--speeds",
         "0.5,1.0",
+        "--speeds",
+        "yaw:0.25",
         "--json",
         "--out",
         str(tmp_path / "ev"),
@@ -96,12 +114,26 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
         "angular_velocity_error",
         "velocity_tracking_error",
         "reconstruction_error_cm",
+        "exposure_s",
     ):
         assert set(m[key]) == {"mean", "std", "n"}
     assert m["success_rate"]["n"] == 2 and m["success_rate"]["std"] == 0.0  # same policy twice
-    assert set(rep["success_by_speed"]["ours"]["flat"]) == {"0.5", "1.0"}
-    for f in ("results.json", "results.csv", "success_by_speed.csv", "success_by_speed_flat.png"):
-        assert (tmp_path / "ev" / f).stat().st_size > 0
+    # survivors are exposed the whole window (20 x 0.02 s), fallers less
+    window = rep["protocol"]["window_s"]
+    assert window == pytest.approx(0.4)
+    assert m["success_rate"]["mean"] * window <= m["exposure_s"]["mean"] + 1e-9 <= window + 1e-9
+    assert rep["coverage"]["ours"]["flat"]["left_terrain"] == 0
+    sweeps = rep["success_by_speed"]
+    assert list(sweeps) == ["vx", "yaw"] and sweeps["yaw"]["unit"] == "rad/s"
+    assert set(sweeps["vx"]["results"]["ours"]["flat"]) == {"0.5", "1.0"}
+    assert set(sweeps["yaw"]["results"]["ours"]["flat"]) == {"0.25"}
+    ev = tmp_path / "ev"
+    for f in ("results.json", "results.csv", "success_by_speed_vx.png", "success_by_speed_yaw.png"):
+        assert (ev / f).stat().st_size > 0
+    rows = list(csv.reader(open(ev / "success_by_speed_vx.csv")))
+    assert rows[0][2] == "vx_mps" and [row[2] for row in rows[1:]] == ["0.5", "1.0"]
+    rows = list(csv.reader(open(ev / "success_by_speed_yaw.csv")))
+    assert rows[0][2] == "yaw_radps" and [row[2] for row in rows[1:]] == ["0.25"]
 
 
 def test_push_test_cli_json(tiny_ckpt, tmp_path):
@@ -120,7 +152,16 @@ def test_push_test_cli_json(tiny_ckpt, tmp_path):
         (["eval", "missing.pt"], 1, "policy not found"),
         (["eval", "{ckpt}", "--terrain", "lava"], 2, "unknown terrain"),
         (["eval", "{ckpt}", "--metrics", "speed"], 2, "unknown metric"),
-        (["eval", "{ckpt}", "--speeds", "fast"], 2, "--speeds wants numbers"),
+        (["eval", "{ckpt}", "--speeds", "fast"], 2, "--speeds vx wants numbers"),
+        (["eval", "{ckpt}", "--speeds", "vz:0.5"], 2, "unknown speed dimension 'vz'"),
+        (["eval", "{ckpt}", "--speeds", "vx:nan"], 2, "not a finite number"),
+        (["eval", "{ckpt}", "--speeds", "0.5", "--speeds", "yaw:inf"], 2, "not a finite number"),
+        (
+            ["eval", "{ckpt}", "--speeds", "vy:0.8"],
+            2,
+            "outside the policy's training command range [-0.5, 0.5]",
+        ),
+        (["eval", "{ckpt}", "--speeds", "1.25"], 2, "outside the policy's training command range [-1, 1]"),
         (["push-test", "{ckpt}", "--envs", "3"], 2, "greater than or equal to 14"),
     ],
 )
@@ -179,3 +220,127 @@ def test_heading_frame_push_rotates_with_the_robot():
 
     w = heading_to_world(np.array([[50.0, 0, 10, 5, 0, 1]]), np.array([np.pi / 2]))
     np.testing.assert_allclose(w, [[0.0, 50.0, 10.0, 0.0, 5.0, 1.0]], atol=1e-12)
+
+
+def test_parse_speeds_per_dimension():
+    plan = parse_speeds(["0.25,0.5", "yaw:0.5,1", "vy:0.25", "vx:0.75,0.5", "VY:-0.25"])
+    assert plan == {"vx": [0.25, 0.5, 0.75], "vy": [0.25, -0.25], "yaw": [0.5, 1.0]}
+    assert list(plan) == ["vx", "vy", "yaw"]  # one order, whatever the order of the options
+    assert parse_speeds([]) == {}
+
+
+def test_sweep_command_per_dimension_and_range_check(tiny_ckpt):
+    trained = CommandConfig()  # v_x -1..1, v_y -0.5..0.5, yaw -0.5..0.5
+    c = EvalSpec(speed=0.3, speed_dim="yaw").commands(trained)
+    assert (c.lin_vel_x, c.lin_vel_y, c.ang_vel_yaw) == ((0.0, 0.0), (0.0, 0.0), (0.3, 0.3))
+    assert c.standing_share == 0.0 and top_speed(c) == 0.0
+    c = EvalSpec(speed=-0.5, speed_dim="vy").commands(trained)  # the range's end is inside
+    assert c.lin_vel_y == (-0.5, -0.5) and top_speed(c) == 0.5
+    assert EvalSpec().commands(trained) is trained
+    with pytest.raises(ValueError, match=r"vy:0.51 m/s is outside .* \[-0.5, 0.5\] m/s"):
+        check_speed(trained, "vy", 0.51)
+    with pytest.raises(ValueError, match="unknown speed dimension"):
+        EvalSpec(speed=0.3, speed_dim="vz")
+    with pytest.raises(ValueError, match="not a finite number"):
+        EvalSpec(speed=float("nan"))
+    # every env of the batch holds the sweep command for the whole window
+    env = make_env(load_policy(tiny_ckpt), EvalSpec("flat", num_envs=3, steps=5, speed=0.4, speed_dim="vy"))
+    try:
+        env.reset()
+        for _ in range(5):
+            env.step(np.zeros((3, 6)))
+        np.testing.assert_array_equal(env.commands.value, [[0.0, 0.4, 0.0]] * 3)
+    finally:
+        env.close()
+
+
+def test_eval_tile_hand_computed():
+    cfg = TerrainConfig()  # 8 m tile, 5 cm samples, 0.25 m rim, 40 blocks
+    v = top_speed(CommandConfig())  # hypot(1.0, 0.5) = 1.118 m/s
+    assert v == pytest.approx(1.1180340, abs=1e-6)
+    big = eval_terrain_config(cfg, 10.0, v)
+    # reach 10 s x (1.118 + 0.5) = 16.180 m; half side >= 16.180 + 0.5 + 0.25 + 0.05 = 16.980 m;
+    # 2 x 16.980 / 0.05 = 679.2 -> 680 samples = 34.0 m
+    assert big.tile_size_m == pytest.approx(34.0) and big.R == 680
+    assert big.num_blocks == 798  # 40 x (33.5 / 7.5)^2 = 798.0: the same block density
+    edge = big.half_extent_m - EDGE_MARGIN_M
+    assert edge >= 16.180 and big.half_extent_m - big.border_m > edge  # the edge lies on the terrain
+    assert (big.step_height_m, big.step_tread_m, big.slope_tan) == (
+        cfg.step_height_m,
+        cfg.step_tread_m,
+        cfg.slope_tan,
+    )
+    assert eval_terrain_config(cfg, 2.0, 0.5) is cfg  # 2 s x 1 m/s fits the training tile
+
+
+def carry_along_x(speed: float, clearance: float = 1.3):
+    """A ``before_step`` that carries every robot upright along world +x at ``speed`` (m/s),
+    ``clearance`` above the ground under it: a perfect walker, to test the window's bookkeeping."""
+
+    def before_step(env: Tron1Env, t: int) -> None:
+        ids = np.arange(env.n)
+        ph = env.physics
+        qpos, qvel, time = ph.qpos.copy(), np.zeros((env.n, ph.nv)), ph.time.copy()
+        qpos[:, 0], qpos[:, 1] = speed * t * env.policy_dt, 0.0
+        qpos[:, 2] = env.ground_height(qpos[:, :2]) + clearance
+        qpos[:, 3:7] = [1.0, 0.0, 0.0, 0.0]
+        qvel[:, 0] = speed
+        ph.set_state(ids, qpos, qvel)
+        ph.state[:, 0] = time  # keep the sim clock (a reset clock reads as a diverged world)
+
+    return before_step
+
+
+def with_command_range(policy, lin_vel_x: tuple[float, float]):
+    """The policy as if trained with forward commands over ``lin_vel_x`` (m/s)."""
+    env = policy.run_cfg.env
+    policy.run_cfg = replace(
+        policy.run_cfg, env=replace(env, commands=replace(env.commands, lin_vel_x=lin_vel_x))
+    )
+    return policy
+
+
+def test_full_window_at_1p25_mps_on_flat(tiny_ckpt):
+    pol = with_command_range(load_policy(tiny_ckpt), (-1.5, 1.5))
+    spec = EvalSpec("flat", num_envs=2, steps=500, speed=1.25, randomize=False)
+    res = run_batch(pol, spec, before_step=carry_along_x(1.25))
+    # 12.5 m in 10 s: far past the 8 m training tile's edge (3.475 m, reached at 2.8 s)
+    assert res.max_reach_m == pytest.approx(1.25 * 500 * 0.02, abs=0.02)
+    assert res.edge_m > res.max_reach_m > 3.475
+    np.testing.assert_array_equal(res.exposure_s, [10.0, 10.0])
+    assert res.metrics["exposure_s"] == pytest.approx(10.0) and res.metrics["success_rate"] == 1.0
+    assert not res.left.any() and not res.fell.any()
+
+
+def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):
+    seen = {}
+    carry = carry_along_x(1.0)
+
+    def before_step(env: Tron1Env, t: int) -> None:
+        carry(env, t)
+        if t == 405:  # 8.1 m out: the training tile ended at 3.975 m
+            tile = env.curriculum.tile
+            seen["types"] = [env.bank.types[k] for k in env.bank.kind[tile]]
+            seen["levels"] = env.bank.level[tile].tolist()
+            seen["ground"] = env.ground_height(np.array([[8.1, 0.0]] * env.n))
+
+    res = run_batch(
+        load_policy(tiny_ckpt), EvalSpec("stairs", -1, num_envs=2, steps=500), before_step=before_step
+    )
+    assert seen["types"] == ["stairs_up", "stairs_down"] and seen["levels"] == [9, 9]
+    # level 9 steps are 0.20 m high, 0.30 m deep from the platform edge at 0.5 m:
+    # ring floor((8.1 - 0.5) / 0.3) + 1 = 26, so 5.2 m up (or down)
+    np.testing.assert_allclose(seen["ground"], [5.2, -5.2], atol=1e-5)
+    np.testing.assert_array_equal(res.exposure_s, [10.0, 10.0])
+    assert res.metrics["success_rate"] == 1.0 and res.max_reach_m > 9.9
+
+
+def test_shipped_policy_walks_the_whole_window_beyond_the_old_tile():
+    onnx = Path(__file__).resolve().parents[1] / "policies" / "tron1_flat.onnx"
+    r = tron1("eval", str(onnx), "--terrain", "flat", "--envs", "8", "--no-randomize", "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert rep["protocol"]["window_s"] == pytest.approx(10.0)
+    assert rep["results"]["tron1_flat"]["flat"]["exposure_s"]["mean"] == pytest.approx(10.0)
+    cov = rep["coverage"]["tron1_flat"]["flat"]
+    assert cov["left_terrain"] == 0 and cov["max_reach_m"] > 8.0 / 2 - EDGE_MARGIN_M

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -35,6 +36,9 @@ def parse_groups(tokens: list[str]) -> dict[str, list[Path]]:
     return groups
 
 
+SPEED_DIM_NAMES = ("vx", "vy", "yaw")  #: as tron1cli.evaluation.protocol.SPEED_DIMS (kept light here)
+
+
 def parse_floats(text: str, what: str) -> list[float]:
     try:
         vals = [float(x) for x in text.split(",") if x.strip()]
@@ -43,6 +47,29 @@ def parse_floats(text: str, what: str) -> list[float]:
     if not vals:
         raise ValueError(f"{what} is empty")
     return vals
+
+
+def parse_speeds(tokens: list[str]) -> dict[str, list[float]]:
+    """``--speeds`` values -> speeds per velocity dimension, in order, without repeats.
+
+    ``["0.25,0.5", "vy:0.25", "yaw:0.5,1", "vx:0.75"]`` -> {"vx": [0.25, 0.5, 0.75], "vy": [0.25],
+    "yaw": [0.5, 1.0]}: ``DIM:LIST`` with DIM one of vx, vy (m/s) or yaw (rad/s); a bare list is vx.
+    Refuses (ValueError) an unknown dimension and non-finite numbers.
+    """
+    plan: dict[str, list[float]] = {}
+    for tok in tokens:
+        dim, sep, values = tok.partition(":")
+        if not sep:
+            dim, values = "vx", tok
+        dim = dim.strip().lower()
+        if dim not in SPEED_DIM_NAMES:
+            raise ValueError(f"unknown speed dimension '{dim}' in --speeds {tok}; choose from vx, vy, yaw")
+        for v in parse_floats(values, f"--speeds {dim}"):
+            if not math.isfinite(v):
+                raise ValueError(f"--speeds {dim}: {v} is not a finite number")
+            if v not in plan.setdefault(dim, []):
+                plan[dim].append(v)
+    return {d: plan[d] for d in SPEED_DIM_NAMES if d in plan}
 
 
 @contextmanager
@@ -81,13 +108,18 @@ def eval_cmd(
     policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
     terrain: str = typer.Option("all", "--terrain", "-t", help=terrain_help(("all",))),
     level: int = typer.Option(-1, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
-    envs: int = typer.Option(128, "--envs", "-n", min=1, help="Envs per batch (paper: 1024)."),
+    envs: int = typer.Option(1024, "--envs", "-n", min=1, help="Envs per batch (1024, as the paper)."),
     steps: int = typer.Option(
         500, "--steps", min=1, help="Policy steps per batch (500 = 10 s, as the paper)."
     ),
     randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
-    speeds: str = typer.Option(
-        "", "--speeds", help="Also success rate by forward speed, e.g. 0.25,0.5,1.0 (Fig. 5)."
+    speeds: list[str] | None = typer.Option(
+        None,
+        "--speeds",
+        metavar="[DIM:]LIST",
+        help="Also success rate by commanded speed (Fig. 5), per velocity dimension: DIM:LIST with "
+        "DIM vx or vy (m/s) or yaw (rad/s), e.g. --speeds vx:0.25,0.5 --speeds yaw:0.5; "
+        "a bare list is vx. Repeatable; within the policy's training command range.",
     ),
     metrics: str = typer.Option(
         "",
@@ -100,6 +132,7 @@ def eval_cmd(
                 "angular_velocity_error",
                 "velocity_tracking_error",
                 "reconstruction_error_cm",
+                "exposure_s",
             )
         ),
     ),
@@ -112,17 +145,28 @@ def eval_cmd(
 ) -> None:
     """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
 
+    Full window: only a fall ends an env's window, and every env walks terrain of the type and
+    level under test for all of it (the eval tile is sized from the window and the fastest command).
     success_rate: share of envs not fallen in the window; orientation_error: |g_b - (0,0,-1)|;
     angular_velocity_error: mean |w_x|, |w_y| (rad/s); velocity_tracking_error: |v_cmd,xy - v_xy|
-    (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm).
+    (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm);
+    exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window).
     """
-    from tron1cli.evaluation.protocol import METRICS, EvalSpec, aggregate, resolve_eval_terrains, run_batch
+    from tron1cli.evaluation.protocol import (
+        METRICS,
+        SPEED_DIMS,
+        EvalSpec,
+        aggregate,
+        check_speed,
+        resolve_eval_terrains,
+        run_batch,
+    )
     from tron1cli.policy.runtime import load_policy
 
     try:
         groups = parse_groups(policies)
         terrains = resolve_eval_terrains(terrain)
-        speed_list = parse_floats(speeds, "--speeds") if speeds else []
+        plan = parse_speeds(speeds or [])
         shown = [m.strip() for m in metrics.split(",") if m.strip()] or list(METRICS)
         bad = [m for m in shown if m not in METRICS]
         if bad:
@@ -131,58 +175,84 @@ def eval_cmd(
     except ValueError as e:
         fail(str(e), 2)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    try:  # a sweep speed must lie inside every policy's training command range
+        for pols in loaded.values():
+            for p in pols:
+                for dim, values in plan.items():
+                    for v in values:
+                        check_speed(p.run_cfg.env.commands, dim, v)
+    except ValueError as e:
+        fail(f"--speeds: {e} ({p.path})", 2)
     n_pol = sum(len(v) for v in loaded.values())
-    total = n_pol * steps * (len(terrains) + len(speed_list) * len(terrains))
+    n_speeds = sum(len(v) for v in plan.values())
+    total = n_pol * steps * len(terrains) * (1 + n_speeds)
     results: dict = {label: {} for label in loaded}
-    by_speed: dict = {label: {t: {} for t in terrains} for label in loaded}
+    coverage: dict = {label: {} for label in loaded}
+    by_speed: dict = {dim: {label: {t: {} for t in terrains} for label in loaded} for dim in plan}
     stream = open_stream(target, recording_name="tron1 eval")
     with progress_bar(total, "eval") as advance:
         for label, pols in loaded.items():
             for t in terrains:
                 runs = []
                 for p in pols:
-                    spec = EvalSpec(t, level, envs, steps, randomize, None, seed)
+                    spec = EvalSpec(t, level, envs, steps, randomize, seed=seed)
                     runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream))
                     if stream is not None:  # the first batch only: one episode on one timeline
                         stream.close()
                         stream = None
                 results[label][t] = {m: aggregate([r.metrics[m] for r in runs]) for m in METRICS}
-                for v in speed_list:
-                    sr = [
-                        run_batch(
-                            p,
-                            EvalSpec(t, level, envs, steps, randomize, v, seed),
-                            advance(f"{label} {t} {v} m/s"),
-                        )
-                        for p in pols
-                    ]
-                    by_speed[label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
+                coverage[label][t] = _coverage(runs)
+                for dim, values in plan.items():
+                    unit = SPEED_DIMS[dim].unit
+                    for v in values:
+                        sr = [
+                            run_batch(
+                                p,
+                                EvalSpec(t, level, envs, steps, randomize, v, seed, speed_dim=dim),
+                                advance(f"{label} {t} {dim} {v:g} {unit}"),
+                            )
+                            for p in pols
+                        ]
+                        by_speed[dim][label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
+                        _warn_left(sr, f"{label} {t} {dim}:{v:g}")
+                _warn_left(runs, f"{label} {t}")
+    first = next(iter(next(iter(coverage.values())).values()))
     report = {
         "protocol": {
+            "name": "full-window",
             "terrains": list(terrains),
             "level": level,
             "envs": envs,
             "steps": steps,
+            "window_s": steps * next(iter(loaded.values()))[0].run_cfg.env.policy_dt,
             "randomize": randomize,
             "seed": seed,
+            "eval_tile_m": first["tile_m"],
         },
         "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
         "results": results,
+        "coverage": coverage,
     }
-    if speed_list:
+    if plan:
         report["success_by_speed"] = {
-            lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
-            for lab, per in by_speed.items()
+            dim: {
+                "unit": SPEED_DIMS[dim].unit,
+                "results": {
+                    lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
+                    for lab, per in by_speed[dim].items()
+                },
+            }
+            for dim in plan
         }
     if out_dir is not None:
-        _write_eval_outputs(out_dir, report, by_speed, speed_list)
+        _write_eval_outputs(out_dir, report, by_speed)
     if as_json:
         print_json(report)
         return
     table = Table(
         title="tron1 eval (Table I)",
-        caption=f"level {level}, {envs} envs x {steps} steps, randomisation {'on' if randomize else 'off'}; "
-        "mean ± std over the policies of a method; success in %",
+        caption=f"level {level}, {envs} envs x {steps} steps, randomisation {'on' if randomize else 'off'}, "
+        f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; success in %",
     )
     table.add_column("method")
     table.add_column("metric")
@@ -193,20 +263,42 @@ def eval_cmd(
             cells = (_fmt(results[label][t][m], m == "success_rate") for t in terrains)
             table.add_row(label if i == 0 else "", m, *cells, end_section=i == len(shown) - 1)
     out.print(table)
-    if speed_list:
-        table = Table(title="success rate (%) by commanded forward speed")
+    for dim, values in plan.items():
+        d = SPEED_DIMS[dim]
+        table = Table(title=f"success rate (%) by commanded {d.words}")
         table.add_column("method / terrain")
-        for v in speed_list:
-            table.add_column(f"{v:g} m/s", justify="right")
+        for v in values:
+            table.add_column(f"{v:g} {d.unit}", justify="right")
         for label in loaded:
             for t in terrains:
-                table.add_row(f"{label} / {t}", *(_fmt(by_speed[label][t][v], True) for v in speed_list))
+                table.add_row(f"{label} / {t}", *(_fmt(by_speed[dim][label][t][v], True) for v in values))
         out.print(table)
     if out_dir is not None:
         out.print(f"results written to {out_dir}/")
 
 
-def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict, speed_list: list[float]) -> None:
+def _coverage(runs: list) -> dict:
+    """How far the envs of one method's batches went on the eval tile (max over its policies)."""
+    return {
+        "tile_m": runs[0].tile_m,
+        "edge_m": runs[0].edge_m,
+        "max_reach_m": max(r.max_reach_m for r in runs),
+        "left_terrain": int(sum(int(r.left.sum()) for r in runs)),
+    }
+
+
+def _warn_left(runs: list, what: str) -> None:
+    n = sum(int(r.left.sum()) for r in runs)
+    if n:
+        err.print(
+            f"[yellow]warning:[/] {what}: {n} envs reached the edge of the eval tile; counted as failures",
+            highlight=False,
+        )
+
+
+def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict) -> None:
+    """results.json, results.csv and, per swept dimension, success_by_speed_DIM.csv and .png."""
+    from tron1cli.evaluation.protocol import SPEED_DIMS
     from tron1cli.viz.plots import success_by_speed
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -218,17 +310,30 @@ def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict, speed_list:
             for t, ms in per.items():
                 for m, a in ms.items():
                     w.writerow([label, t, m, a["mean"], a["std"], a["n"]])
-    if speed_list:
-        with open(out_dir / "success_by_speed.csv", "w", newline="") as f:
+    for dim, per_label in by_speed.items():
+        unit = SPEED_DIMS[dim].unit
+        with open(out_dir / f"success_by_speed_{dim}.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["method", "terrain", "speed_mps", "success_mean", "success_std"])
-            for label, per in by_speed.items():
+            w.writerow(
+                ["method", "terrain", f"{dim}_{unit.replace('/', 'p')}", "success_mean", "success_std"]
+            )
+            for label, per in per_label.items():
                 for t, d in per.items():
                     for v, a in d.items():
                         w.writerow([label, t, v, a["mean"], a["std"]])
-        for t in next(iter(by_speed.values())):
-            curves = {label: per[t] for label, per in by_speed.items()}
-            success_by_speed(curves, out_dir / f"success_by_speed_{t}.png", title=f"success by speed: {t}")
+        terrains = next(iter(per_label.values()))
+        curves = {
+            (label if len(terrains) == 1 else f"{label} / {t}"): per[t]
+            for label, per in per_label.items()
+            for t in per
+        }
+        words = SPEED_DIMS[dim].words
+        success_by_speed(
+            curves,
+            out_dir / f"success_by_speed_{dim}.png",
+            title=f"success by commanded {words}",
+            xlabel=f"commanded {words} {dim} ({unit})",
+        )
 
 
 def push_test(
@@ -241,7 +346,11 @@ def push_test(
     ),
     level: int = typer.Option(-1, "--level", help="Terrain difficulty level (-1 the hardest)."),
     envs: int = typer.Option(
-        140, "--envs", "-n", min=14, help="Envs per policy (spread over the 14 push types)."
+        1024,
+        "--envs",
+        "-n",
+        min=14,
+        help="Envs per policy (1024, as the paper; spread over the 14 push types).",
     ),
     randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
     seed: int = typer.Option(0, "--seed", help="Seed of the envs and the mixed pushes."),
@@ -256,6 +365,7 @@ def push_test(
 
     Moderate: 50 N or 5 N m for 0.2 s; extreme: 400 N or 20 N m for 0.1 s; along +/-x, +/-y, +/-z
     of the heading frame, or a mixed random wrench on all axes; 'none' is the unpushed control.
+    Full window, as in eval: only a fall ends an env's window.
     """
     from dataclasses import replace
 
@@ -280,6 +390,9 @@ def push_test(
     steps = proto.steps(next(iter(loaded.values()))[0].run_cfg.env.policy_dt)
     survival: dict = {}
     overall: dict = {}
+    exposure: dict = {}
+    coverage: dict = {}
+    per_type = (envs // len(PUSH_TYPES), -(-envs // len(PUSH_TYPES)))
     with progress_bar(steps * sum(len(v) for v in loaded.values()), "push-test") as advance:
         for label, pols in loaded.items():
             res = []
@@ -292,9 +405,14 @@ def push_test(
                     stream = None
             survival[label] = {k: aggregate([r.survival[k] for r in res]) for k in PUSH_TYPES}
             overall[label] = aggregate([r.survival_rate for r in res])
+            exposure[label] = aggregate([r.exposure_s for r in res])
+            coverage[label] = _coverage([r.batch for r in res])
+            _warn_left([r.batch for r in res], label)
     report = {
         "protocol": {
             "name": proto.name,
+            "window": "full-window",
+            "eval_tile_m": next(iter(coverage.values()))["tile_m"],
             "force_n": proto.force_n,
             "torque_nm": proto.torque_nm,
             "duration_s": proto.duration_s,
@@ -313,9 +431,11 @@ def push_test(
                 "survival_rate_std": overall[label]["std"],
                 "per_push": {k: v["mean"] for k, v in survival[label].items()},
                 "per_push_std": {k: v["std"] for k, v in survival[label].items()},
+                "exposure_s": exposure[label]["mean"],
             }
             for label in loaded
         },
+        "coverage": coverage,
     }
     if len(loaded) == 1:  # one method: its figures at the top level too
         (only,) = report["methods"].values()
@@ -338,9 +458,10 @@ def push_test(
     if as_json:
         print_json(report)
         return
+    lo, hi = per_type
+    per_push = f"{lo}" if lo == hi else f"{lo}-{hi}"
     table = Table(
-        title=f"{proto.name} push survival (%) on {proto.terrain}, level {level}, "
-        f"{envs // len(PUSH_TYPES)} envs per push"
+        title=f"{proto.name} push survival (%) on {proto.terrain}, level {level}, {per_push} envs per push"
     )
     table.add_column("push")
     for label in loaded:

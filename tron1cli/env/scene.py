@@ -62,6 +62,11 @@ def hfield_range(bank: TerrainBank) -> tuple[float, float]:
 
 
 def set_tile(model: mujoco.MjModel, bank: TerrainBank, tile: int) -> None:
-    """Write tile ``tile`` of ``bank`` into the model's height field (row 0 at -y, column 0 at -x)."""
-    lo, hi = hfield_range(bank)
-    model.hfield_data[:] = ((bank.heights[tile] - lo) / (hi - lo)).ravel()
+    """Write tile ``tile`` of ``bank`` into the model's height field (row 0 at -y, column 0 at -x).
+
+    The bank's height range is read back from the model (the ground's z offset and the height
+    field's z size, set by :func:`build_model`), not recomputed over the whole bank per call.
+    """
+    lo = float(model.geom(GROUND_NAME).pos[2])
+    span = float(model.hfield_size[0, 2])
+    model.hfield_data[:] = ((bank.heights[tile] - lo) / span).ravel()

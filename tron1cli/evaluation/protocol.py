@@ -1,33 +1,41 @@
-"""The paper's evaluation protocol (section V-B) on the one env core.
+"""The paper's evaluation protocol (section V-B) on the one env core: the full window.
 
 A batch of N envs runs a deterministic student policy (checkpoint or ONNX, through
 :class:`tron1cli.policy.runtime.Policy`) for S policy steps on one terrain at a fixed difficulty
 level, with the policy's own observation layout and, unless switched off, its training
-randomisation. Envs never time out inside the window; an env that falls stops counting (and
-fails), one that reaches the edge of its tile has crossed the terrain and stops counting (and
-succeeds).
+randomisation. Only a fall ends an env's window: envs never time out inside it, and every env
+stays on terrain of the type and level under test for all of it. For that the eval tile is the
+training tile's terrain (same generator, same level, same step height, slope or block density)
+on a larger square, sized from the window and the fastest command (:func:`eval_terrain_config`)
+so that a robot leaving the centre at that speed plus :data:`SPEED_SLACK_MPS` stays inside the
+edge margin. An env that reaches the edge all the same counts as a failure (``left``), never
+as a success, and the batch reports how far the envs went (``max_reach_m``).
 
 Metrics (Table I), averaged over the steps of envs still walking:
 
-- ``success_rate`` (0-1): share of envs that did not fall during the S steps;
+- ``success_rate`` (0-1): share of envs that did not fall (or leave the tile) in the S steps;
 - ``orientation_error``: |g_b - (0, 0, -1)|, g_b the unit gravity direction in the base frame;
 - ``angular_velocity_error`` (rad/s): mean of |w_x| and |w_y|, base frame;
 - ``velocity_tracking_error`` (m/s): |v_cmd,xy - v_xy|, base frame;
 - ``reconstruction_error_cm``: mean |h_hat - h| over the 441 heightmap points, in cm (student
-  with perception only; None otherwise).
+  with perception only; None otherwise);
+- ``exposure_s`` (s): mean time an env spent walking on the terrain under test (a survivor:
+  the whole window, S x 0.02 s; a faller: until its fall).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
 from tron1cli.config.env import CommandConfig
-from tron1cli.env.core import Tron1Env
+from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
-from tron1cli.env.terrain import TERRAIN_GROUPS
+from tron1cli.env.terrain import TERRAIN_GROUPS, TerrainConfig
 from tron1cli.policy.contract import check_matches_env
 from tron1cli.policy.runtime import Policy
 
@@ -37,10 +45,79 @@ METRICS = (
     "angular_velocity_error",
     "velocity_tracking_error",
     "reconstruction_error_cm",
+    "exposure_s",
 )
 #: the Table I columns, in order; ``all`` on the command line means these
 EVAL_TERRAINS = ("stairs", "slopes", "discrete", "rough", "flat")
 TERRAIN_ALIASES = {"slope": "slopes", "stair": "stairs"}
+
+#: how much faster than its fastest command a robot is assumed to move when the eval tile is
+#: sized (m/s). Measured on the shipped flat policy (1024 envs, 10 s): the farthest env got
+#: 11.1 m from the centre on level-0 stairs (1.11 m/s on average; top command 1.12 m/s)
+SPEED_SLACK_MPS = 0.5
+
+
+class SpeedDim(NamedTuple):
+    """One velocity dimension of the success-by-speed sweep (Fig. 5)."""
+
+    column: int  # index into the command (v_x, v_y, yaw rate)
+    field: str  # the CommandConfig range it is checked against
+    unit: str
+    words: str  # for titles: "forward speed", ...
+
+
+SPEED_DIMS: dict[str, SpeedDim] = {
+    "vx": SpeedDim(0, "lin_vel_x", "m/s", "forward speed"),
+    "vy": SpeedDim(1, "lin_vel_y", "m/s", "lateral speed"),
+    "yaw": SpeedDim(2, "ang_vel_yaw", "rad/s", "yaw rate"),
+}
+
+
+def check_speed_form(dim: str, value: float | None = None) -> None:
+    """Refuse (ValueError) an unknown speed dimension or a non-finite speed."""
+    if dim not in SPEED_DIMS:
+        raise ValueError(f"unknown speed dimension '{dim}'; choose from {', '.join(SPEED_DIMS)}")
+    if value is not None and not math.isfinite(value):
+        raise ValueError(f"speed {dim}:{value} is not a finite number")
+
+
+def check_speed(commands: CommandConfig, dim: str, value: float) -> None:
+    """Refuse (ValueError) an unknown dimension, a non-finite value, or one outside the policy's
+    training command range ``commands`` for that dimension."""
+    check_speed_form(dim, value)
+    d = SPEED_DIMS[dim]
+    lo, hi = getattr(commands, d.field)
+    if not lo <= value <= hi:
+        raise ValueError(
+            f"speed {dim}:{value:g} {d.unit} is outside the policy's training command range "
+            f"[{lo:g}, {hi:g}] {d.unit}"
+        )
+
+
+def top_speed(commands: CommandConfig) -> float:
+    """Fastest planar speed (m/s) a command of ``commands`` can ask for: |(v_x, v_y)| at the corners."""
+    vx = max(abs(v) for v in commands.lin_vel_x)
+    vy = max(abs(v) for v in commands.lin_vel_y)
+    return float(math.hypot(vx, vy))
+
+
+def eval_terrain_config(cfg: TerrainConfig, window_s: float, speed_mps: float) -> TerrainConfig:
+    """The training terrain ``cfg`` on a tile large enough for a whole window.
+
+    A robot leaving the tile centre at ``speed_mps + SPEED_SLACK_MPS`` for ``window_s`` stays
+    ``EDGE_MARGIN_M`` inside the terrain: half side >= reach + margin + rim, rounded up to whole
+    samples; never smaller than the training tile. Discrete tiles get blocks in proportion to the
+    terrain area (same density); every other type is scale-free (same step height and tread,
+    slope, noise amplitude and cell).
+    """
+    reach = window_s * (speed_mps + SPEED_SLACK_MPS)
+    half = reach + EDGE_MARGIN_M + cfg.border_m + cfg.resolution_m
+    samples = math.ceil(2.0 * half / cfg.resolution_m - 1e-9)
+    side = max(cfg.tile_size_m, round(samples * cfg.resolution_m, 9))
+    if side == cfg.tile_size_m:
+        return cfg
+    area = (side - 2 * cfg.border_m) ** 2 / (cfg.tile_size_m - 2 * cfg.border_m) ** 2
+    return replace(cfg, tile_size_m=side, num_blocks=int(round(cfg.num_blocks * area)))
 
 
 def resolve_eval_terrains(name: str) -> tuple[str, ...]:
@@ -59,38 +136,51 @@ class EvalSpec:
 
     terrain: terrain group (``stairs``, ``flat``, ...); level: difficulty level (-1 = hardest);
     num_envs, steps: batch size and window (policy steps, 50 Hz); randomize: the policy's training
-    randomisation (off: nominal model); speed: when set, every env is commanded v_x = speed (m/s),
-    v_y = 0, no yaw (Fig. 5); otherwise the training command distribution; pushes: random pushes
-    during the window (push tests set their own wrench instead).
+    randomisation (off: nominal model); speed: when set, every env is commanded ``speed`` along
+    ``speed_dim`` (``vx``, ``vy`` in m/s, ``yaw`` in rad/s) and zero on the other two, for the whole
+    window (Fig. 5); otherwise the training command distribution; pushes: random pushes during the
+    window (push tests set their own wrench instead).
     """
 
     terrain: str = "flat"
     level: int = -1
-    num_envs: int = 128
+    num_envs: int = 1024
     steps: int = 500
     randomize: bool = True
     speed: float | None = None
     seed: int = 0
     pushes: PushConfig | None = None
+    speed_dim: str = "vx"
 
     def __post_init__(self) -> None:
         if self.num_envs < 1 or self.steps < 1:
             raise ValueError("envs and steps must be positive")
+        check_speed_form(self.speed_dim, self.speed)
 
-
-def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
-    """The policy's own env, re-configured for evaluation by ``spec``; refuses a layout mismatch."""
-    base = policy.run_cfg.env
-    commands = base.commands
-    if spec.speed is not None:
-        s = float(spec.speed)
-        commands = CommandConfig(
-            lin_vel_x=(s, s),
-            lin_vel_y=(0.0, 0.0),
-            ang_vel_yaw=(0.0, 0.0),
+    def commands(self, trained: CommandConfig) -> CommandConfig:
+        """The command distribution of the batch: the training one ``trained``, or the fixed sweep
+        command (checked against ``trained``'s range)."""
+        if self.speed is None:
+            return trained
+        check_speed(trained, self.speed_dim, self.speed)
+        fixed = [(0.0, 0.0)] * 3
+        fixed[SPEED_DIMS[self.speed_dim].column] = (float(self.speed), float(self.speed))
+        return CommandConfig(
+            lin_vel_x=fixed[0],
+            lin_vel_y=fixed[1],
+            ang_vel_yaw=fixed[2],
             resample_s=(1e9, 1e9),
             standing_share=0.0,
         )
+
+
+def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
+    """The policy's own env, re-configured for evaluation by ``spec`` on a full-window tile
+    (:func:`eval_terrain_config`); refuses a layout mismatch or a sweep speed outside the policy's
+    command range."""
+    base = policy.run_cfg.env
+    commands = spec.commands(base.commands)
+    window_s = spec.steps * base.policy_dt
     cfg = replace(
         base,
         num_envs=spec.num_envs,
@@ -101,6 +191,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         randomization=base.randomization if spec.randomize else RandomizationConfig(),
         pushes=spec.pushes or PushConfig(),
         commands=commands,
+        terrain_cfg=eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
         termination=replace(base.termination, episode_length_s=(spec.steps + 10) * base.policy_dt),
     )
     env = Tron1Env(cfg, policy.run_cfg.reward)
@@ -122,11 +213,28 @@ def frame_errors(
 
 @dataclass
 class EvalResult:
-    """Figures of one batch: ``metrics`` (keys :data:`METRICS`), per-env ``fell`` mask, counts."""
+    """Figures of one batch.
+
+    metrics: keys :data:`METRICS`; fell: per-env mask of falls (incl. unstable simulations);
+    left: per-env mask of envs that reached the edge of the eval tile (failures too; expected
+    none); exposure_s: per-env time walked on the terrain under test (s); tile_m: side of the eval
+    tile (m); edge_m: distance from the centre (inf-norm, m) at which an env leaves it;
+    max_reach_m: farthest any walking env got from the centre (inf-norm, m).
+    """
 
     metrics: dict[str, float | None]
     fell: np.ndarray
+    left: np.ndarray
+    exposure_s: np.ndarray
+    tile_m: float
+    edge_m: float
+    max_reach_m: float
     unstable_resets: int
+
+    @property
+    def failed(self) -> np.ndarray:
+        """Envs whose window did not end in success: fell or left the terrain under test."""
+        return self.fell | self.left
 
 
 def run_batch(
@@ -145,12 +253,14 @@ def run_batch(
         obs = env.reset()
         hidden = policy.initial_hidden(n)
         fell = np.zeros(n, dtype=bool)
-        crossed = np.zeros(n, dtype=bool)
-        sums = dict.fromkeys(METRICS[1:], 0.0)
+        left = np.zeros(n, dtype=bool)
+        exposed = np.zeros(n, dtype=np.int64)  # policy steps walked on the terrain
+        reach = 0.0
+        sums = dict.fromkeys(METRICS[1:4], 0.0)
         count = 0
         rec_sum, rec_count = 0.0, 0
         for t in range(spec.steps):
-            walking = ~fell & ~crossed
+            walking = ~fell & ~left
             action, hidden, h_hat, _ = policy.step(obs["history"], policy.depth_input(obs, n), hidden)
             if h_hat.shape[1] and "heightmap" in obs:
                 err = np.abs(h_hat[walking] - obs["heightmap"][walking])
@@ -162,9 +272,13 @@ def run_batch(
                 stream.log_step(env, stream_env, t, t * env.policy_dt, extras={"h_hat": h_hat})
             res = env.step(action)
             fell |= walking & (res.failed | res.unstable)
-            crossed |= walking & res.time_out
+            # the episode outlasts the window, so a walking env's time-out is the tile's edge
+            left |= walking & res.time_out
             ok = walking & ~res.done
+            exposed += ok
             s = env.state
+            if ok.any():
+                reach = max(reach, float(np.abs(s.base_pos[ok, :2]).max()))
             errs = frame_errors(
                 s.projected_gravity[ok],
                 s.base_ang_vel_b[ok],
@@ -178,11 +292,22 @@ def run_batch(
             obs = res.obs
             if on_step is not None:
                 on_step(t + 1)
-        metrics: dict[str, float | None] = {"success_rate": float(1.0 - fell.mean())}
+        exposure = exposed * env.policy_dt
+        metrics: dict[str, float | None] = {"success_rate": float(1.0 - (fell | left).mean())}
         for k in METRICS[1:4]:
             metrics[k] = sums[k] / count if count else None
         metrics["reconstruction_error_cm"] = 100.0 * rec_sum / rec_count if rec_count else None
-        return EvalResult(metrics, fell, env.unstable_count)
+        metrics["exposure_s"] = float(exposure.mean())
+        return EvalResult(
+            metrics,
+            fell,
+            left,
+            exposure,
+            tile_m=env.bank.size,
+            edge_m=round(float(env.edge), 9),
+            max_reach_m=reach,
+            unstable_resets=env.unstable_count,
+        )
     finally:
         env.close()
 

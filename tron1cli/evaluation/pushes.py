@@ -5,7 +5,9 @@ push for ``duration_s``: a force along +/-x, +/-y or +/-z, or a torque about one
 at the protocol's full magnitude, or a ``mixed`` wrench drawn uniformly within the ranges on all
 six axes at once; ``none`` envs are the unpushed control. Axes are those of the robot's heading
 frame (x forward, y left, z up) at the push's start. An env survives when it has not fallen
-``watch_s`` after the push ends. Env ``i`` gets push type ``i mod len(PUSH_TYPES)``.
+``watch_s`` after the push ends. Env ``i`` gets push type ``i mod len(PUSH_TYPES)``. The batch
+runs under the full-window protocol of :mod:`tron1cli.evaluation.protocol`: only a fall ends an
+env's window, on a tile sized so that no env leaves the terrain under test.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.math3d import rotate_z, yaw_of
-from tron1cli.evaluation.protocol import EvalSpec, run_batch
+from tron1cli.evaluation.protocol import EvalResult, EvalSpec, run_batch
 from tron1cli.policy.runtime import Policy
 
 _AXES = ("x", "y", "z")
@@ -81,9 +83,15 @@ def heading_to_world(wrench_h: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 @dataclass
 class PushResult:
-    survival: dict[str, float]  # per push type, 0-1
-    survival_rate: float  # over every pushed env (the control excluded)
-    envs_per_type: int
+    """Survival (0-1) per push type and over every pushed env (the control excluded); envs per
+    type (min, max: ``num_envs`` need not divide by the 14 types); mean exposure (s) and the
+    batch's full-window figures (:class:`tron1cli.evaluation.protocol.EvalResult`)."""
+
+    survival: dict[str, float]
+    survival_rate: float
+    envs_per_type: tuple[int, int]
+    exposure_s: float
+    batch: EvalResult
 
 
 def run_push_test(
@@ -125,6 +133,14 @@ def run_push_test(
     res = run_batch(
         policy, spec, on_step=on_step, before_step=push, stream=stream, stream_env=PUSH_TYPES.index(watch)
     )
-    survival = {name: float(1.0 - res.fell[types == t].mean()) for t, name in enumerate(PUSH_TYPES)}
+    failed = res.failed  # fell, or (never expected) left the terrain under test
+    survival = {name: float(1.0 - failed[types == t].mean()) for t, name in enumerate(PUSH_TYPES)}
     pushed = types != 0
-    return PushResult(survival, float(1.0 - res.fell[pushed].mean()), num_envs // len(PUSH_TYPES))
+    counts = np.bincount(types, minlength=len(PUSH_TYPES))
+    return PushResult(
+        survival,
+        float(1.0 - failed[pushed].mean()),
+        (int(counts.min()), int(counts.max())),
+        float(res.exposure_s.mean()),
+        res,
+    )

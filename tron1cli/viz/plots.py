@@ -67,10 +67,16 @@ def _save(fig, out_png: Path) -> Path:
     return out_png
 
 
-def success_by_speed(curves: dict[str, dict[float, dict]], out_png: Path, title: str = "") -> Path:
-    """Fig. 5 style: success rate (%) against commanded speed, mean +/- std band per label.
+def success_by_speed(
+    curves: dict[str, dict[float, dict]],
+    out_png: Path,
+    title: str = "",
+    xlabel: str = "commanded forward speed (m/s)",
+) -> Path:
+    """Fig. 5 style: success rate (%) against commanded speed along one velocity dimension,
+    mean +/- std band per label.
 
-    curves: label -> speed (m/s) -> {"mean": 0-1, "std": 0-1}.
+    curves: label -> speed (m/s, or rad/s for yaw rate) -> {"mean": 0-1, "std": 0-1}.
     """
     fig, ax = plt.subplots(figsize=(6, 4))
     for label, by_speed in curves.items():
@@ -84,7 +90,7 @@ def success_by_speed(curves: dict[str, dict[float, dict]], out_png: Path, title:
             [a + b for a, b in zip(m, sd, strict=True)],
             alpha=0.2,
         )
-    ax.set(xlabel="commanded forward speed (m/s)", ylabel="success rate (%)", ylim=(0, 102), title=title)
+    ax.set(xlabel=xlabel, ylabel="success rate (%)", ylim=(0, 102), title=title)
     ax.grid(alpha=0.3)
     ax.legend()
     return _save(fig, out_png)
