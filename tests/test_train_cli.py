@@ -200,3 +200,30 @@ def test_paper_preset_with_overrides_is_recorded_and_printed(tmp_path):
     assert (c["preset"], c["gait_prior"], c["learner"]["critic_weights"]) == ("paper", False, {})
     assert c["env"]["perception"] and c["env"]["pushes"]["enabled"] and c["env"]["terrain"] == "mixed"
     assert "camera_fov" in c["env"]["randomization"]["terms"] and c["env"]["num_envs"] == 16
+
+
+def test_resumed_run_keeps_its_terrain_levels(tmp_path):
+    """A campaign resumed in a later session goes on from the levels it reached, not from 0."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from tron1cli.config.presets import perceptive
+    from tron1cli.train.runner import Trainer, run_config
+
+    preset = replace(perceptive("stairs"), num_envs=8, steps_per_env=4, hidden=(16,))
+    cfg = run_config(preset, nthread=1)
+    first = Trainer(tmp_path, cfg)
+    cur, bank = first.env.curriculum, first.env.bank
+    cur.level[:] = np.arange(8) % bank.cfg.num_levels
+    cur.tile[:] = bank.tile_index(cur.kind, cur.level, np.zeros(8, int))
+    first.save()
+    first.close()
+    resumed = Trainer(tmp_path, resume=True)
+    try:
+        assert np.array_equal(resumed.env.curriculum.level, np.arange(8) % bank.cfg.num_levels)
+        assert np.array_equal(resumed.env.curriculum.tile, cur.tile)
+        with pytest.raises(ValueError, match="another terrain type or level"):
+            resumed.env.restore_curriculum({"level": cur.level + 1, "tile": cur.tile})
+    finally:
+        resumed.close()

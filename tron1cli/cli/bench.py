@@ -104,12 +104,16 @@ def _bench_train(
         res = run_train_bench(cfg, rounds=rounds, device=device)
     if as_json:
         print_json(res)
-        return
+    else:
+        print_train_table(res)
+
+
+def print_train_table(res: dict) -> None:
+    """The table of a :func:`tron1cli.benchmark.run_train_bench` result."""
     t = Table(
-        title=f"tron1 bench --train: {envs} envs x {res['steps_per_env']} steps, {terrain}"
-        f"{' (perception)' if res['perception'] else ''}, {threads} threads, learner on {device} in "
-        f"{precision}, "
-        f"median of {rounds} rounds"
+        title=f"tron1 bench --train: {res['num_envs']} envs x {res['steps_per_env']} steps, "
+        f"{res['terrain']}{' (perception)' if res['perception'] else ''}, {res['nthread']} threads, "
+        f"learner on {res['device']} in {res['precision']}, median of {res['rounds']} rounds"
     )
     for col, just in (
         ("what", "left"),

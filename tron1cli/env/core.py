@@ -259,6 +259,27 @@ class Tron1Env:
             for i, m in enumerate(self.physics.models):
                 set_tile(m, self.bank, int(self.curriculum.tile[i]))
 
+    def curriculum_state(self) -> dict[str, np.ndarray]:
+        """Each env's terrain level and tile (N,) each: what a resumed run needs to go on climbing."""
+        return {"level": self.curriculum.level.copy(), "tile": self.curriculum.tile.copy()}
+
+    def restore_curriculum(self, state: dict[str, np.ndarray]) -> None:
+        """Put every env back on the level and tile of :meth:`curriculum_state`; call before reset.
+
+        ValueError when the state is of another env count or names tiles outside this bank."""
+        level, tile = np.asarray(state["level"]), np.asarray(state["tile"])
+        if level.shape != (self.n,) or tile.shape != (self.n,):
+            raise ValueError(f"curriculum state of {level.shape} envs, this env has {self.n}")
+        if tile.min() < 0 or tile.max() >= self.bank.K:
+            raise ValueError("curriculum state names tiles outside this terrain bank")
+        if np.any(self.bank.kind[tile] != self.curriculum.kind) or np.any(self.bank.level[tile] != level):
+            raise ValueError("curriculum state puts envs on another terrain type or level than it names")
+        self.curriculum.level[:] = level
+        self.curriculum.tile[:] = tile
+        if self.model.nhfield:
+            for i, m in enumerate(self.physics.models):
+                set_tile(m, self.bank, int(tile[i]))
+
     def ground_height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
         return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)

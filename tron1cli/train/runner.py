@@ -212,6 +212,8 @@ class Trainer:
             self.cfg = cfg = replace(cfg, init_from=f"{init} (iteration {int(source['iteration'])})")
         if state is not None:
             self.learner.load_state_dict(state["learner"])
+            if "curriculum" in state and self.env.model.nhfield:  # the terrain levels reached
+                self.env.restore_curriculum({k: v.numpy() for k, v in state["curriculum"].items()})
             self.iteration = int(state["iteration"])
             self.env_steps = int(state["env_steps"])
             self.wall_s = float(state.get("wall_s", 0.0))
@@ -226,6 +228,7 @@ class Trainer:
             "env_steps": self.env_steps,
             "wall_s": self.wall_s,
             "obs_layout": json.dumps(self.env.layout.to_dict()),
+            "curriculum": {k: torch.from_numpy(v) for k, v in self.env.curriculum_state().items()},
         }
         latest = self.ckpt_dir / "latest.pt"
         save_checkpoint(latest, payload)
