@@ -2,7 +2,13 @@
 
 import json
 
-from tron1cli.viz.plots import first_reached, push_survival, success_by_speed, training_curves
+from tron1cli.viz.plots import (
+    campaign_curves,
+    first_reached,
+    push_survival,
+    success_by_speed,
+    training_curves,
+)
 
 
 def _rows():
@@ -19,13 +25,18 @@ def test_first_reached_hand_computed():
 def test_plots_write_pngs(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
-    (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in _rows()))
+    rows = [
+        r | {"env_steps": 1000 * i, "terrain/level/stairs_up": i, "learn/heightmap_err_cm": 5.0 - i}
+        for i, r in enumerate(_rows())
+    ]
+    (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
     pngs = [
         training_curves({"a": run}, tmp_path / "curves.png", mark_minutes=3.0),
         success_by_speed(
             {"a": {0.5: {"mean": 0.9, "std": 0.1}, 1.0: {"mean": 0.5, "std": None}}}, tmp_path / "s.png"
         ),
         push_survival({"a": {"none": 1.0, "+Fx": 0.5}}, tmp_path / "p.png"),
+        campaign_curves(run, tmp_path / "campaign.png", smooth=2),
     ]
     for p in pngs:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -58,6 +58,42 @@ def training_curves(
     return _save(fig, out_png)
 
 
+def campaign_curves(run_dir: Path, out_png: Path, smooth: int = 20) -> Path:
+    """A perceptive run against wall-clock minutes (resumed sessions included): survival and
+    velocity tracking error of both groups, terrain level per type, and the student's heightmap
+    reconstruction error; each curve a running mean over ``smooth`` iterations."""
+    rows = read_metrics(run_dir)
+    t = [m["wall_s"] / 60.0 for m in rows]
+
+    def series(key: str) -> list[float]:
+        vals = [m.get(key) for m in rows]
+        out, window = [], []
+        for v in vals:
+            window = (window + ([v] if v is not None else []))[-smooth:]
+            out.append(sum(window) / len(window) if window else float("nan"))
+        return out
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    (a_s, a_e), (a_l, a_r) = axes
+    for g in ("teacher", "student"):
+        a_s.plot(t, series(f"{g}/survival"), label=g)
+        a_e.plot(t, series(f"{g}/vel_tracking_error"), label=g)
+    for key in sorted(k for k in rows[-1] if k.startswith("terrain/level/")):
+        a_l.plot(t, series(key), label=key.rsplit("/", 1)[1])
+    a_r.plot(t, series("learn/heightmap_err_cm"), color="C3")
+    a_s.set(ylabel="survival (share of episodes)", ylim=(0, 1.02))
+    a_e.set(ylabel="velocity tracking error (m/s)", ylim=(0, None))
+    a_l.set(ylabel="terrain level (0 .. 9 hardest)", ylim=(0, 9.2))
+    a_r.set(ylabel="student heightmap error (cm, RMS)", ylim=(0, None))
+    for ax in axes.flat:
+        ax.set_xlabel("wall-clock minutes")
+        ax.grid(alpha=0.3)
+    for ax in (a_s, a_e, a_l):
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{Path(run_dir).name}: {rows[-1]['env_steps'] / 1e6:.1f} M env steps")
+    return _save(fig, out_png)
+
+
 def _save(fig, out_png: Path) -> Path:
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
