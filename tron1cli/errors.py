@@ -13,3 +13,15 @@ class UsageError(Tron1Error):
     """A bad option value (exit code 2)."""
 
     exit_code = 2
+
+
+def one_line(message: str) -> str:
+    """``message`` as one line: its lines joined with '; ', blank ones dropped."""
+    return "; ".join(x.strip() for x in str(message).splitlines() if x.strip())
+
+
+def describe(e: BaseException) -> str:
+    """An exception as one short line: its type and the first line of its message (the type
+    alone when the message is empty)."""
+    lines = [x.strip() for x in str(e).splitlines() if x.strip()]
+    return f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__

@@ -7,7 +7,16 @@ from dataclasses import replace
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import available_cores, err, fail, out, print_json, resolve_device, terrain_help
+from tron1cli.cli.common import (
+    SEED_MAX,
+    available_cores,
+    err,
+    fail,
+    out,
+    print_json,
+    resolve_device,
+    terrain_help,
+)
 
 
 def bench(
@@ -20,7 +29,7 @@ def bench(
         help="Physics (and with --train torch) threads [default: the cores available].",
         show_default=False,
     ),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Random seed."),
     terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     depth: bool = typer.Option(
         False,

@@ -5,8 +5,12 @@ from __future__ import annotations
 import json
 import os
 import sys
+from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
+
+from tron1cli.errors import one_line
 
 #: results go to stdout, progress and errors to stderr
 out = Console()
@@ -21,9 +25,44 @@ def terrain_help(extra: tuple[str, ...] = ()) -> str:
 
 
 def fail(message: str, code: int = 1) -> None:
-    """Print one line on stderr and exit with ``code`` (1 runtime, 2 usage)."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    """Print one line on stderr and exit with ``code`` (1 runtime, 2 usage); a message of several
+    lines is joined into one."""
+    err.print(f"[bold red]error:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
     sys.exit(code)
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr."""
+    err.print(f"[yellow]warning:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
+
+
+def note(message: str) -> None:
+    """One informational line on stderr (e.g. that an existing output file is replaced)."""
+    err.print(f"note: {escape(one_line(message))}", highlight=False, soft_wrap=True)
+
+
+def check_outputs(files=(), dirs=(), inputs=()) -> None:
+    """Check every output location before the work starts (exit 2 naming the problem); say in one
+    line which existing output file will be replaced. files, dirs: (option, path) pairs."""
+    from tron1cli.errors import UsageError
+    from tron1cli.fileio import check_output_dir, check_output_file
+
+    try:
+        for option, path in dirs:
+            if path is not None:
+                check_output_dir(path, option, inputs)
+        for option, path in files:
+            if path is not None and check_output_file(path, option, inputs):
+                note(f"{option}: replacing the existing {path}")
+    except UsageError as e:
+        fail(str(e), e.exit_code)
+
+
+def rerun_file(target) -> tuple[str, Path] | None:
+    """The (option, file) a ``--rerun save=FILE`` target writes, for :func:`check_outputs`."""
+    if target is not None and target.kind == "save":
+        return ("--rerun", Path(target.arg))
+    return None
 
 
 def print_json(obj: dict) -> None:
@@ -54,3 +93,29 @@ def resolve_device(name: str) -> str:
                 2,
             )
     return name
+
+
+_MUJOCO_SEEN: set[str] = set()
+
+
+def route_mujoco_warnings() -> None:
+    """MuJoCo's warnings as our own one-line warnings on stderr, each kind once per run, instead of
+    its console print on stdout and its ``MUJOCO_LOG.TXT`` in the current folder."""
+    import mujoco
+
+    cfg = mujoco.MjLogConfig.get()
+    cfg.logto_file = False
+    cfg.logto_console = False
+    cfg.set()
+
+    def on_warning(message: str) -> None:
+        kind = message.split(" Time =")[0].strip()
+        if kind not in _MUJOCO_SEEN:  # the env counts and resets unstable worlds itself
+            _MUJOCO_SEEN.add(kind)
+            warn(f"MuJoCo: {kind} (further such warnings are not shown)")
+
+    mujoco.set_mju_user_warning(on_warning)
+
+
+#: the largest --seed (numpy, torch and the terrain generator all take 32-bit seeds)
+SEED_MAX = 2**32 - 1

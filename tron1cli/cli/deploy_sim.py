@@ -8,7 +8,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json, terrain_help
+from tron1cli.cli.common import SEED_MAX, err, fail, out, print_json, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -37,7 +37,9 @@ def deploy_sim(
     realtime: bool = typer.Option(
         False, "--realtime", help="Pace the loop to the wall clock [default: as fast as possible]."
     ),
-    seed: int = typer.Option(0, "--seed", help="Seed of the env, the terrain and the sensor noise."),
+    seed: int = typer.Option(
+        0, "--seed", min=0, max=SEED_MAX, help="Seed of the env, the terrain and the sensor noise."
+    ),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Proprioceptive and depth sensor noise."),
     depth_latency_ms: float = typer.Option(
         0.0, "--depth-latency-ms", min=0.0, help="Latency added to every depth frame (ms)."

@@ -12,7 +12,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json, terrain_help
+from tron1cli.cli.common import SEED_MAX, err, fail, out, print_json, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -136,7 +136,7 @@ def eval_cmd(
             )
         ),
     ),
-    seed: int = typer.Option(0, "--seed", help="Seed of the eval envs."),
+    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the eval envs."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
         None, "--out", help="Write results.json, results.csv and plots here."
@@ -353,7 +353,7 @@ def push_test(
         help="Envs per policy (1024, as the paper; spread over the 14 push types).",
     ),
     randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the envs and the mixed pushes."),
+    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the envs and the mixed pushes."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
         None, "--out", help="Write results.json, results.csv and the plot here."

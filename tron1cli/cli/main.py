@@ -13,7 +13,7 @@ from tron1cli.cli import deploy_sim as deploy_sim_cmd
 from tron1cli.cli import evaluate as evaluate_cmd
 from tron1cli.cli import export as export_cmd
 from tron1cli.cli import train as train_cmd
-from tron1cli.cli.common import fail
+from tron1cli.cli.common import fail, route_mujoco_warnings
 from tron1cli.errors import Tron1Error
 
 app = typer.Typer(
@@ -54,6 +54,7 @@ app.command("bench")(bench_cmd.bench)
 def main() -> None:
     """Run the CLI: a user's mistake gives one line on stderr and exit 2, a runtime failure exit 1."""
     try:
+        route_mujoco_warnings()
         code = app(standalone_mode=False)
     except TyperException as e:  # typer's usage errors: bad option, bad value, missing argument
         fail(e.format_message().splitlines()[0], getattr(e, "exit_code", 2))
@@ -63,6 +64,9 @@ def main() -> None:
         fail(str(e), e.exit_code)
     except FileNotFoundError as e:
         fail(str(e), 1)
+    except OSError as e:  # a disk full, a permission taken away while running, ...
+        where = f"{e.filename}: " if e.filename else ""
+        fail(f"{where}{e.strerror or e}", 1)
     except KeyboardInterrupt:
         fail("interrupted", 130)
     sys.exit(code if isinstance(code, int) else 0)

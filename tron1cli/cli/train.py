@@ -11,7 +11,17 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import available_cores, err, fail, out, resolve_device, terrain_help
+from tron1cli.cli.common import (
+    SEED_MAX,
+    available_cores,
+    check_outputs,
+    err,
+    fail,
+    out,
+    rerun_file,
+    resolve_device,
+    terrain_help,
+)
 from tron1cli.config.presets import PRESETS
 from tron1cli.env.randomization import ALL_TERMS
 
@@ -55,7 +65,7 @@ def train(
         min=1,
         help="PPO iterations in total [default: 300; on --resume: the run's own].",
     ),
-    seed: int = typer.Option(0, "--seed", help="Seed of every random stream."),
+    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of every random stream."),
     ablation: str = typer.Option(
         "none", "--ablation", "-a", help="none, no-stable-reward, single-critic, no-rfm, l2-velocity."
     ),
@@ -149,6 +159,11 @@ def train(
     given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
     if resume and preset is not None:
         fail("--preset starts a new run; --resume continues with the run's own configuration", 2)
+    if init is not None and resume:
+        fail("--init starts a new run from other weights; --resume continues this one", 2)
+    if resume:
+        _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every)
+        return
     try:
         if preset is not None:
             base = make_preset(preset)
@@ -176,7 +191,7 @@ def train(
                 raise ValueError
         except ValueError:
             fail(f"--hidden wants positive integers separated by commas, got '{hidden}'", 2)
-    from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
+    from tron1cli.viz.rerun_stream import parse_rerun_option
 
     try:
         target = parse_rerun_option(rerun)
@@ -202,52 +217,170 @@ def train(
     if "randomize" in given:
         randomization = RandomizationConfig.table_iii() if randomize else RandomizationConfig()
     if "randomize_skip" in given:
-        if not randomization.terms:
-            fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
-        try:
-            randomization = RandomizationConfig.table_iii(skip=_csv(randomize_skip))
+        try:  # the names first: an unknown term is wrong whether randomisation is on or not
+            skipped = RandomizationConfig.table_iii(skip=_csv(randomize_skip))
         except ValueError as e:
             fail(f"--randomize-skip: {e}", 2)
+        if not randomization.terms:
+            fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
+        randomization = skipped
     device = resolve_device(device)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
+    check_outputs(files=[f for f in (rerun_file(target),) if f], inputs=[init] if init else ())
     tune_glibc_malloc()
-    cfg = None
-    if not resume:
-        try:
-            push_cfg = base.pushes
-            if "pushes" in given:
-                push_cfg = PushConfig.moderate() if pushes else PushConfig()
-            chosen = replace(
-                base,
-                terrain=terrain,
-                num_envs=envs if "envs" in given else base.num_envs,
-                iterations=iterations if "iterations" in given else base.iterations,
-                steps_per_env=steps_per_env if "steps_per_env" in given else base.steps_per_env,
-                hidden=sizes,
-                teacher_ratio=teacher_ratio if "teacher_ratio" in given else base.teacher_ratio,
-                gait_prior=gait_prior,
-                critic_weights=MappingProxyType(weights),
-                perception=perception if "perception" in given else base.perception,
-                randomization=randomization,
-                pushes=push_cfg,
-                ablation=ablation,
-            )
-            cfg = run_config(
-                chosen,
-                seed=seed,
-                nthread=threads,
-                save_every=save_every,
-                precision=precision,
-                overrides=overridden,
-            )
-        except ValueError as e:
-            fail(str(e), 2)
-    if init is not None and resume:
-        fail("--init starts a new run from other weights; --resume continues this one", 2)
+    try:
+        push_cfg = base.pushes
+        if "pushes" in given:
+            push_cfg = PushConfig.moderate() if pushes else PushConfig()
+        chosen = replace(
+            base,
+            terrain=terrain,
+            num_envs=envs if "envs" in given else base.num_envs,
+            iterations=iterations if "iterations" in given else base.iterations,
+            steps_per_env=steps_per_env if "steps_per_env" in given else base.steps_per_env,
+            hidden=sizes,
+            teacher_ratio=teacher_ratio if "teacher_ratio" in given else base.teacher_ratio,
+            gait_prior=gait_prior,
+            critic_weights=MappingProxyType(weights),
+            perception=perception if "perception" in given else base.perception,
+            randomization=randomization,
+            pushes=push_cfg,
+            ablation=ablation,
+        )
+        cfg = run_config(
+            chosen,
+            seed=seed,
+            nthread=threads,
+            save_every=save_every,
+            precision=precision,
+            overrides=overridden,
+        )
+    except ValueError as e:
+        fail(str(e), 2)
+    n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
+    if n_teacher >= cfg.env.num_envs:
+        fail(
+            f"--teacher-ratio {cfg.learner.teacher_ratio:g} of {cfg.env.num_envs} envs leaves no "
+            "student env: the student is the policy that is exported and deployed; take a smaller ratio",
+            2,
+        )
+    if init is not None and Path(init).resolve().parent == (run_dir / "checkpoints").resolve():
+        fail(f"--init {init} lies in this run's own checkpoints; give another run's checkpoint", 2)
+    trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init)
+    _run(trainer, run_dir, target, minutes, rerun_every, resumed=False)
+
+
+def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every) -> None:
+    """``--resume``: the saved run goes on as saved; an option that would change it is refused."""
+    from tron1cli.train.runner import Trainer, check_run_dir
+    from tron1cli.viz.rerun_stream import parse_rerun_option
+
+    try:
+        target = parse_rerun_option(rerun)
+    except ValueError as e:
+        fail(str(e), 2)
+    device = resolve_device(device)
+    check_run_dir(run_dir, True)
+    check_outputs(files=[f for f in (rerun_file(target),) if f])
+    _refuse_changed_options(ctx, run_dir)
+    from tron1cli.learn import tune_glibc_malloc
+
+    tune_glibc_malloc()
     trainer = Trainer(
-        run_dir, cfg, resume=resume, iterations=iterations, device=device, threads=threads, init=init
+        run_dir,
+        resume=True,
+        iterations=iterations,
+        device=device,
+        threads=threads or available_cores(),
+        save_every=save_every if _given(ctx, "save_every") else None,
     )
+    _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
+
+
+#: what a run fixes (--resume keeps it): option -> its value in a saved RunConfig
+def _saved_values(cfg) -> dict:
+    e, lr = cfg.env, cfg.learner
+    terms = e.randomization.terms
+    return {
+        "terrain": e.terrain,
+        "envs": e.num_envs,
+        "teacher_ratio": lr.teacher_ratio,
+        "gait_prior": cfg.gait_prior,
+        "steps_per_env": lr.num_steps_per_env,
+        "hidden": tuple(lr.actor_hidden),
+        "critic_weights": {k: float(v) for k, v in lr.critic_weights.items() if float(v) != 1.0},
+        "perception": e.perception,
+        "randomize": bool(terms),
+        "randomize_skip": frozenset(t for t in ALL_TERMS if t not in terms) if terms else frozenset(),
+        "pushes": e.pushes.enabled,
+        "ablation": cfg.ablation,
+        "seed": e.seed,
+        "precision": lr.precision,
+    }
+
+
+def _as_saved(name: str, value):
+    """A command-line value in the form of :func:`_saved_values` (the raw value if it cannot be)."""
+    try:
+        if name == "hidden":
+            return tuple(int(x) for x in value.split(","))
+        if name == "critic_weights":
+            pairs = (kv.split("=") for kv in value.split(",") if kv.strip())
+            return {k.strip(): float(v) for k, v in pairs if float(v) != 1.0}
+        if name == "randomize_skip":
+            return frozenset(_csv(value))
+    except ValueError:
+        return value
+    return value
+
+
+def _shown(name: str, value) -> str:
+    flag = "--" + name.replace("_", "-")
+    if isinstance(value, bool):
+        return flag if value else "--no-" + name.replace("_", "-")
+    if isinstance(value, tuple):
+        value = ",".join(str(x) for x in value)
+    elif isinstance(value, dict):
+        value = ",".join(f"{k}={v:g}" for k, v in value.items()) or "(all 1)"
+    elif isinstance(value, frozenset):
+        value = ",".join(t for t in ALL_TERMS if t in value) or "(none)"
+    return f"{flag} {value}"
+
+
+def _refuse_changed_options(ctx, run_dir: Path) -> None:
+    """Exit 2 naming the saved value when an option given with --resume differs from the run's."""
+    import json
+
+    from tron1cli.train.checkpoint import load_checkpoint
+    from tron1cli.train.runner import RunConfig
+
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    try:
+        saved = _saved_values(RunConfig.from_dict(json.loads(state["config"])))
+    except (KeyError, TypeError, ValueError) as e:
+        fail(f"{run_dir}: the checkpoint's run configuration is unreadable ({e})", 1)
+    for name, was in saved.items():
+        if not _given(ctx, name):
+            continue
+        now = _as_saved(name, ctx.params[name])
+        if name == "teacher_ratio" and not isinstance(now, str):
+            same = abs(float(now) - float(was)) < 1e-12
+        else:
+            same = now == was
+        if not same:
+            fail(
+                f"{_shown(name, ctx.params[name]) if isinstance(now, str) else _shown(name, now)}: "
+                f"the run in {run_dir} was started with {_shown(name, was)} and --resume continues "
+                "it as saved; leave the option out, or start a new run in another --run-dir",
+                2,
+            )
+
+
+def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) -> None:
+    """Train, print the header, the progress line and the closing table."""
+    from tron1cli.viz.rerun_stream import open_stream
+
     c = trainer.cfg
     if trainer.iteration >= c.iterations:
         trainer.close()
@@ -262,9 +395,10 @@ def train(
         f"critic weights {_weights_summary(c.learner.critic_weights)}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
-        f"seed {c.env.seed}, {c.env.nthread} threads, learner on {device} in {c.learner.precision} "
+        f"seed {c.env.seed}, {c.env.nthread} threads, learner on {trainer.learner.device.type} in "
+        f"{c.learner.precision} "
         f"-> {run_dir}"
-        + (f" (resumed at iteration {trainer.iteration})" if resume else "")
+        + (f" (resumed at iteration {trainer.iteration})" if resumed else "")
         + (f"; started from {c.init_from}" if c.init_from else "")
         + (f": {trainer.warm_start.summary()}" if trainer.warm_start else "")
     )
@@ -298,13 +432,11 @@ def train(
             last = trainer.run(show, max_minutes=minutes, stream=stream, stream_every=rerun_every)
     except KeyboardInterrupt:
         path = trainer.save()
+        fail(f"interrupted at iteration {trainer.iteration}: checkpoint saved to {path}", 130)
+    finally:
         trainer.close()
         if stream is not None:
             stream.close()
-        fail(f"interrupted at iteration {trainer.iteration}: checkpoint saved to {path}", 130)
-    trainer.close()
-    if stream is not None:
-        stream.close()
     t = Table(
         title=f"tron1 train: {trainer.iteration} iterations, {trainer.env_steps:,} env steps, "
         f"{trainer.wall_s / 60:.1f} min"

@@ -6,13 +6,12 @@ lists and dicts, never arbitrary pickled objects.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import torch
 
-from tron1cli.errors import Tron1Error
+from tron1cli.errors import Tron1Error, describe
+from tron1cli.fileio import atomic_write
 
 FORMAT = "tron1cli-checkpoint"
 VERSION = 1
@@ -20,19 +19,8 @@ VERSION = 1
 
 def save_checkpoint(path: Path, payload: dict) -> None:
     """Write ``payload`` (plus format and version) to ``path`` atomically (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     data = {"format": FORMAT, "version": VERSION, **payload}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(data, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(Path(path), lambda f: torch.save(data, f))
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -40,12 +28,16 @@ def load_checkpoint(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise Tron1Error(f"checkpoint not found: {path}")
+    if path.stat().st_size == 0:
+        raise Tron1Error(f"cannot read checkpoint {path}: the file is empty")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for truncated or foreign files
-        raise Tron1Error(
-            f"cannot read checkpoint {path}: {type(e).__name__}: {str(e).splitlines()[0]}"
-        ) from e
+        if "weights only load failed" in str(e).lower():  # never pass on torch's weights_only=False advice
+            why = "it holds more than plain tensors and numbers (pickled objects are never loaded)"
+        else:
+            why = describe(e)
+        raise Tron1Error(f"cannot read checkpoint {path}: {why}") from e
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise Tron1Error(f"{path} is not a tron1cli checkpoint")
     if data.get("version") != VERSION:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -29,6 +28,7 @@ from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.rewards import RewardConfig, make_reward_config
 from tron1cli.errors import Tron1Error, UsageError
+from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.learn.warm_start import WarmStart, warm_start
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
@@ -156,7 +156,7 @@ class Trainer:
     device: where the learner computes (``cpu`` or ``cuda``); the env core always runs on the CPU.
     threads: physics and torch threads of a resumed run (a new run takes ``cfg.env.nthread``).
     init: a checkpoint whose weights a new run starts from wherever the shapes agree
-    (:mod:`tron1cli.learn.warm_start`).
+    (:mod:`tron1cli.learn.warm_start`). save_every: a resumed run's new checkpoint period.
     """
 
     def __init__(
@@ -168,6 +168,7 @@ class Trainer:
         device: str = "cpu",
         threads: int | None = None,
         init: Path | None = None,
+        save_every: int | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -183,11 +184,16 @@ class Trainer:
                 cfg = replace(cfg, iterations=iterations)
             if threads is not None:  # the machine may differ from the one the run started on
                 cfg = replace(cfg, env=replace(cfg.env, nthread=threads))
+            if save_every is not None:
+                cfg = replace(cfg, save_every=save_every)
         elif cfg is None:
             raise UsageError("a new run needs a configuration")
         elif (self.ckpt_dir / "latest.pt").exists():
             raise UsageError(f"{self.run_dir} already holds a run: pass --resume to continue it")
         self.cfg = cfg
+        # a save killed midway leaves its temp file; nothing else would ever remove it
+        clean_stale_temps(self.ckpt_dir)
+        clean_stale_temps(self.run_dir, ".config.json")
         torch.manual_seed(cfg.env.seed)
         torch.set_num_threads(cfg.env.nthread)
         self.env = Tron1Env(cfg.env, cfg.reward)
@@ -217,10 +223,68 @@ class Trainer:
             self.iteration = int(state["iteration"])
             self.env_steps = int(state["env_steps"])
             self.wall_s = float(state.get("wall_s", 0.0))
+            self._trim_metrics()
+        #: the iteration of the checkpoint on disk (None before the first save)
+        self.saved_iteration: int | None = self.iteration if state is not None else None
         self.stats = EpisodeStats()
 
     # -- persistence ------------------------------------------------------------------------
+    def nonfinite(self) -> list[str]:
+        """Names of the model's parameters and buffers (normaliser statistics included) holding
+        NaN or inf; one pass over the model, done once per iteration."""
+        named = [(k, v) for k, v in self.learner.model.state_dict().items() if v.is_floating_point()]
+        ok = torch.stack([torch.isfinite(v).all() for _, v in named]) if named else torch.ones(0)
+        if bool(ok.all()):
+            return []
+        return [k for (k, _), good in zip(named, ok.tolist(), strict=True) if not good]
+
+    def _stop_nonfinite(self, what: str) -> None:
+        latest = self.ckpt_dir / "latest.pt"
+        kept = (
+            f"{latest} (iteration {self.saved_iteration}) is the last good checkpoint; --resume "
+            "continues from it"
+            if self.saved_iteration is not None
+            else "no checkpoint had been saved yet"
+        )
+        raise NonFiniteTraining(
+            f"training went non-finite in iteration {self.iteration + 1} ({what}); stopped without "
+            f"saving it: {kept}"
+        )
+
+    def check_finite(self, learn_stats: dict) -> None:
+        """Stop (:class:`NonFiniteTraining`) when a loss or the model went NaN or inf."""
+        bad = [k for k, v in learn_stats.items() if "loss" in k and not math.isfinite(float(v))]
+        if bad:
+            self._stop_nonfinite(f"{bad[0]} is {learn_stats[bad[0]]}")
+        names = self.nonfinite()
+        if names:
+            more = f" and {len(names) - 1} more" if len(names) > 1 else ""
+            self._stop_nonfinite(f"non-finite values in {names[0]}{more}")
+
+    def _trim_metrics(self) -> None:
+        """Drop metrics lines past the checkpoint resumed from (iterations that will be redone)."""
+        if not self.metrics_path.is_file():
+            return
+        lines = self.metrics_path.read_text().splitlines(keepends=True)
+        keep = []
+        for line in lines:
+            try:
+                if int(json.loads(line)["iteration"]) > self.iteration:
+                    continue
+            except (ValueError, KeyError, TypeError):
+                pass  # a line cut by a kill: keep what cannot be read rather than guess
+            keep.append(line)
+        if len(keep) != len(lines):
+            data = "".join(keep).encode()
+            atomic_write(self.metrics_path, lambda f: f.write(data))
+
     def save(self) -> Path:
+        names = self.nonfinite()
+        if names:  # never replace a good checkpoint with a broken one
+            raise NonFiniteTraining(
+                f"not saving iteration {self.iteration}: non-finite values in {names[0]}; "
+                f"{self.ckpt_dir / 'latest.pt'} keeps the last good state"
+            )
         payload = {
             "config": json.dumps(self.cfg.to_dict()),
             "learner": self.learner.state_dict(),
@@ -234,13 +298,12 @@ class Trainer:
         save_checkpoint(latest, payload)
         if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
             save_checkpoint(self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt", payload)
+        self.saved_iteration = self.iteration
         return latest
 
     def _write_config(self) -> None:
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        tmp = self.run_dir / ".config.json.tmp"
-        tmp.write_text(json.dumps(self.cfg.to_dict(), indent=2))
-        os.replace(tmp, self.run_dir / "config.json")
+        data = json.dumps(self.cfg.to_dict(), indent=2).encode()
+        atomic_write(self.run_dir / "config.json", lambda f: f.write(data), fsync=False)
 
     # -- the loop ---------------------------------------------------------------------------
     def iterate(
@@ -271,6 +334,7 @@ class Trainer:
             obs = res.obs
         t1 = time.perf_counter()
         learn_stats = learner.update(obs)
+        self.check_finite(learn_stats)
         t2 = time.perf_counter()
         self.iteration += 1
         steps = T * env.n
@@ -351,7 +415,15 @@ class Trainer:
         self.env.close()
 
 
+class NonFiniteTraining(Tron1Error):
+    """A loss, a weight or a normaliser statistic went NaN or inf; the run stops unsaved."""
+
+
 def check_run_dir(run_dir: Path, resume: bool) -> None:
-    """Clear errors for a resume without a run, before anything is built."""
+    """Clear errors before anything is built: a resume without a run, a run directory that cannot
+    be made or written."""
+    from tron1cli.fileio import check_output_dir
+
+    check_output_dir(run_dir, "--run-dir")
     if resume and not (Path(run_dir) / "checkpoints" / "latest.pt").exists():
         raise Tron1Error(f"nothing to resume in {run_dir}: no checkpoints/latest.pt")
