@@ -41,21 +41,28 @@ def note(message: str) -> None:
     err.print(f"note: {escape(one_line(message))}", highlight=False, soft_wrap=True)
 
 
-def check_outputs(files=(), dirs=(), inputs=()) -> None:
-    """Check every output location before the work starts (exit 2 naming the problem); say in one
-    line which existing output file will be replaced. files, dirs: (option, path) pairs."""
+def check_outputs(files=(), dirs=(), inputs=()) -> list[Path]:
+    """Check every output location before the work starts (exit 2 naming the problem).
+
+    files, dirs: (option, path) pairs (None entries and paths skipped); inputs: the command's own
+    input files, never to be written over. Returns the output files that exist already (to be
+    replaced: the caller says so once the work succeeded)."""
     from tron1cli.errors import UsageError
     from tron1cli.fileio import check_output_dir, check_output_file
 
+    existing = []
     try:
         for option, path in dirs:
             if path is not None:
                 check_output_dir(path, option, inputs)
-        for option, path in files:
-            if path is not None and check_output_file(path, option, inputs):
-                note(f"{option}: replacing the existing {path}")
+        for entry in files:
+            if entry is not None and entry[1] is not None:
+                option, path = entry
+                if check_output_file(path, option, inputs):
+                    existing.append(Path(path))
     except UsageError as e:
         fail(str(e), e.exit_code)
+    return existing
 
 
 def rerun_file(target) -> tuple[str, Path] | None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import err, out, print_json
+from tron1cli.cli.common import check_outputs, err, fail, note, out, print_json
 
 
 def export_onnx(
@@ -25,10 +25,18 @@ def export_onnx(
     the whole deployment contract. Fails (exit 1) if onnxruntime and torch differ by more than --tol
     over a recurrent rollout in the policy's own env.
     """
+    from tron1cli.policy.export import default_output
     from tron1cli.policy.export import export_onnx as run_export
 
-    err.print(f"exporting {checkpoint} and comparing onnxruntime with torch over {parity_steps} steps ...")
-    rep = run_export(checkpoint, output, parity_steps, tol)
+    if not checkpoint.is_file():
+        fail(f"checkpoint not found: {checkpoint}", 1)
+    target = output if output is not None else default_output(checkpoint)
+    replaced = check_outputs(files=[("-o", target)], inputs=[checkpoint])
+    what = f"exporting {checkpoint} and comparing onnxruntime with torch over {parity_steps} steps ..."
+    with err.status(what):  # transient: an error is the only line
+        rep = run_export(checkpoint, target, parity_steps, tol)
+    if replaced:
+        note(f"replaced the earlier {rep.path}")
     if as_json:
         print_json(
             {

@@ -227,7 +227,7 @@ def train(
     device = resolve_device(device)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
-    check_outputs(files=[f for f in (rerun_file(target),) if f], inputs=[init] if init else ())
+    check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
     tune_glibc_malloc()
     try:
         push_cfg = base.pushes
@@ -282,7 +282,7 @@ def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, reru
         fail(str(e), 2)
     device = resolve_device(device)
     check_run_dir(run_dir, True)
-    check_outputs(files=[f for f in (rerun_file(target),) if f])
+    check_outputs(files=[rerun_file(target)])
     _refuse_changed_options(ctx, run_dir)
     from tron1cli.learn import tune_glibc_malloc
 

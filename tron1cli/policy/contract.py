@@ -9,6 +9,7 @@ out differently from those it was trained on.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 
 from tron1cli.env import robot, sensors
@@ -101,7 +102,64 @@ def from_metadata(props: Mapping[str, str], where: str) -> dict:
     missing = [k for k in ("obs_layout", "run_config", "joint_names", "gru_hidden") if k not in contract]
     if missing:
         raise Tron1Error(f"{where}: policy contract lacks {', '.join(missing)}")
+    validate(contract, where)
     return contract
+
+
+def _numbers(value) -> list:
+    return list(value) if isinstance(value, list | tuple) else [value]
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _is_count(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= 1
+
+
+def validate(contract: Mapping, where: str) -> None:
+    """Refuse (:class:`Tron1Error`) a contract whose fields cannot be meant: a gain, rate or
+    scale that is not a finite positive number, a count that is not a positive integer, a
+    history length or width that disagrees with the observation layout."""
+    positive = ("action_scale_rad", "kp_nm_per_rad", "kd_nm_s_per_rad", "torque_limit_nm")
+    positive += ("sim_dt_s", "policy_hz", "depth_hz")
+    for key in positive:
+        if key in contract:
+            vals = _numbers(contract[key])
+            if not vals or not all(_is_number(x) and x > 0 for x in vals):
+                raise Tron1Error(
+                    f"{where}: contract field {key} = {contract[key]!r} is not a finite positive number"
+                )
+    if "default_pose_rad" in contract:
+        pose = _numbers(contract["default_pose_rad"])
+        if len(pose) != len(robot.JOINT_NAMES) or not all(_is_number(x) for x in pose):
+            raise Tron1Error(
+                f"{where}: contract field default_pose_rad must hold {len(robot.JOINT_NAMES)} finite "
+                f"numbers, got {contract['default_pose_rad']!r}"
+            )
+    for key in ("decimation", "history_len", "gru_hidden"):
+        if key in contract and not _is_count(contract[key]):
+            raise Tron1Error(f"{where}: contract field {key} = {contract[key]!r} is not a positive integer")
+    layout = contract["obs_layout"]
+    try:
+        sizes = layout["sizes"]
+        hist_len, proprio, history = layout["history_len"], sizes["proprio"], sizes["history"]
+    except (KeyError, TypeError) as e:
+        raise Tron1Error(f"{where}: contract field obs_layout is incomplete (no {e})") from None
+    if not all(_is_count(x) for x in (hist_len, proprio, history)):
+        raise Tron1Error(f"{where}: obs_layout sizes must be positive integers, got {sizes!r}")
+    if "history_len" in contract and contract["history_len"] != hist_len:
+        raise Tron1Error(
+            f"{where}: contract history_len {contract['history_len']} disagrees with obs_layout's {hist_len}"
+        )
+    if history != hist_len * proprio:
+        raise Tron1Error(
+            f"{where}: contract history width {history} is not history_len {hist_len} x proprio {proprio}"
+        )
+    hw = layout.get("depth_hw")
+    if hw is not None and (not isinstance(hw, list) or len(hw) != 2 or not all(_is_count(x) for x in hw)):
+        raise Tron1Error(f"{where}: contract obs_layout depth_hw = {hw!r} is not two positive integers")
 
 
 def check_matches_env(contract: Mapping, layout: ObsLayout, where: str) -> None:

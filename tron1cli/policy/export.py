@@ -11,8 +11,6 @@ is carried by itself).
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -20,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tron1cli.errors import Tron1Error
+from tron1cli.errors import Tron1Error, UsageError
+from tron1cli.fileio import atomic_write, clean_stale_temps, same_path, temp_prefix
 from tron1cli.policy import contract as pc
-from tron1cli.policy.runtime import load_policy, load_student
+from tron1cli.policy.runtime import Policy, load_policy, load_student, onnx_policy
 
 OPSET = 17
 
@@ -65,14 +64,26 @@ def _onnx_bytes(student: torch.nn.Module, batch: int, hist_w: int, depth_hw, gru
 
 
 def export_onnx(
-    checkpoint: Path, out: Path | None = None, parity_steps: int = 200, tol: float = 1e-4
+    checkpoint: Path,
+    out: Path | None = None,
+    parity_steps: int = 200,
+    tol: float = 1e-4,
+    on_loaded=None,
 ) -> ExportReport:
-    """Write the ONNX file (atomically), check it, and compare it with torch; see the module doc."""
+    """Check, compare with torch, then write the ONNX file (atomically); see the module doc.
+
+    Nothing is written unless the graph passes the checker and the parity check, so a failed
+    export leaves an earlier file in place. on_loaded(): called once the checkpoint has loaded.
+    """
     import onnx
 
     checkpoint = Path(checkpoint)
     out = Path(out) if out is not None else default_output(checkpoint)
-    student, run_cfg, state = load_student(checkpoint)
+    if same_path(out, checkpoint):
+        raise UsageError(f"-o {out} is the checkpoint being exported; writing there would destroy it")
+    student, run_cfg, state = load_student(checkpoint)  # refuses non-finite weights
+    if on_loaded is not None:
+        on_loaded()
     gru = int(state["learner"]["config"]["gru_hidden"])
     contract = pc.build_contract(run_cfg, gru, str(checkpoint))
     layout = pc.layout_of(run_cfg)
@@ -85,25 +96,30 @@ def export_onnx(
         onnx.checker.check_model(model, full_check=True)
     except onnx.checker.ValidationError as e:
         raise Tron1Error(f"the exported graph fails the ONNX checker: {str(e).splitlines()[0]}") from e
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
-        f.write(model.SerializeToString())
-    os.replace(tmp, out)
-    diffs = parity(checkpoint, out, parity_steps)
+    diffs = parity(load_policy(checkpoint), onnx_policy(model, out), parity_steps)
     worst = max(diffs.values())
     if not worst <= tol:
         raise Tron1Error(
             f"onnxruntime differs from torch by {worst:.2e} (> {tol:.0e}) over {parity_steps} steps"
         )
+    clean_stale_temps(out.parent, temp_prefix(out))  # an earlier export killed midway
+    data = model.SerializeToString()
+    atomic_write(out, lambda f: f.write(data), fsync=False)
     return ExportReport(out, parity_steps, worst, diffs, out.stat().st_size)
 
 
-def parity(checkpoint: Path, onnx_path: Path, steps: int, num_envs: int = 2) -> dict[str, float]:
-    """Largest |onnx - torch| per output over a ``steps``-long recurrent rollout in the policy's env."""
+def parity(
+    ref: Policy | Path, ort: Policy | Path, steps: int, num_envs: int = 2
+) -> dict[str, float]:
+    """Largest |onnx - torch| per output over a ``steps``-long recurrent rollout in the policy's env.
+
+    ref, ort: the torch and the onnxruntime policy (or their files). A non-finite output of
+    either raises :class:`Tron1Error` (NaN would otherwise compare as no difference at all).
+    """
     from tron1cli.env.core import Tron1Env
 
-    ref, ort = load_policy(checkpoint), load_policy(onnx_path)
+    ref = ref if isinstance(ref, Policy) else load_policy(ref)
+    ort = ort if isinstance(ort, Policy) else load_policy(ort)
     cfg = ref.run_cfg
     env = Tron1Env(replace(cfg.env, num_envs=num_envs, nthread=1, depth_from=0), cfg.reward)
     try:
@@ -111,11 +127,16 @@ def parity(checkpoint: Path, onnx_path: Path, steps: int, num_envs: int = 2) -> 
         h_ref = ref.initial_hidden(num_envs)
         h_ort = ort.initial_hidden(num_envs)
         worst = dict.fromkeys(pc.OUTPUTS, 0.0)
-        for _ in range(steps):
+        for t in range(steps):
             depth = ref.depth_input(obs, num_envs)
             a = ref.step(obs["history"], depth, h_ref)
             b = ort.step(obs["history"], depth, h_ort)
             for name, x, y in zip(pc.OUTPUTS, a, b, strict=True):
+                if not (np.isfinite(x).all() and np.isfinite(y).all()):
+                    raise Tron1Error(
+                        f"the policy's output {name} is not finite at step {t} of the parity rollout "
+                        "(NaN or inf); not exported"
+                    )
                 if x.size:
                     worst[name] = max(worst[name], float(np.max(np.abs(x - y))))
             h_ref, h_ort = a[1], b[1]

@@ -37,7 +37,10 @@ def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
         )
         model.load_state_dict(sd["model"])
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
-        raise Tron1Error(f"{path}: checkpoint does not hold a usable policy ({type(e).__name__}: {e})") from e
+        raise Tron1Error(f"{path}: checkpoint does not hold a usable policy ({_short(e)})") from e
+    bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise Tron1Error(f"{path}: the policy's weights are not finite (NaN or inf in {bad[0]})")
     student = StudentPolicy(model).eval()
     for p in student.parameters():
         p.requires_grad_(False)
@@ -94,38 +97,95 @@ class Policy:
         return tuple(o.numpy() for o in outs)  # type: ignore[return-value]
 
 
-def load_policy(path: Path | str) -> Policy:
-    """Load ``path`` (a ``.pt`` checkpoint or an ``.onnx`` export); bad files raise Tron1Error."""
+def _short(e: BaseException) -> str:
+    """One line for a loading error; torch's shape mismatches list every tensor on lines of their own."""
+    lines = [x.strip() for x in str(e).splitlines() if x.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+        more = f" and {len(lines) - 2} more" if len(lines) > 2 else ""
+        return f"weights of another shape: {lines[1].rstrip('.')}{more}"
+    return f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
+
+
+def _static_dims(value_info) -> list[int | None]:
+    """The dims of a graph input or output: ints, None where symbolic (the batch)."""
+    dims = value_info.type.tensor_type.shape.dim
+    return [d.dim_value if d.HasField("dim_value") else None for d in dims]
+
+
+def check_graph(model, contract: dict, where: str) -> None:
+    """Refuse an ONNX graph whose inputs and outputs disagree with its own contract (names,
+    ranks, widths), and one whose weights are not finite."""
+    from onnx import numpy_helper
+
+    names_in = [i.name for i in model.graph.input]
+    names_out = [o.name for o in model.graph.output]
+    if names_in != list(pc.INPUTS) or names_out != list(pc.OUTPUTS):
+        raise Tron1Error(
+            f"{where}: graph inputs {names_in} / outputs {names_out} do not match the contract "
+            f"{list(pc.INPUTS)} / {list(pc.OUTPUTS)}"
+        )
+    layout = contract["obs_layout"]
+    gru = int(contract["gru_hidden"])
+    hw = layout.get("depth_hw") or [1, 1]
+    want = {
+        "history": [None, int(layout["sizes"]["history"])],
+        "depth": [None, int(hw[0]), int(hw[1])],
+        "hidden": [None, gru],
+        "action": [None, len(contract["joint_names"])],
+        "hidden_next": [None, gru],
+    }
+    for vi in (*model.graph.input, *model.graph.output):
+        if vi.name not in want:
+            continue
+        have, need = _static_dims(vi), want[vi.name]
+        if len(have) != len(need) or any(h is not None and h != n for h, n in zip(have, need, strict=False)):
+            show = ["batch" if d is None else d for d in have]
+            raise Tron1Error(
+                f"{where}: graph {vi.name} has shape {show}, its contract says "
+                f"{['batch', *need[1:]]} (obs_layout, gru_hidden)"
+            )
+    for init in model.graph.initializer:
+        if init.data_type in (1, 10, 11, 16):  # float, float16, double, bfloat16
+            arr = numpy_helper.to_array(init)
+            if not np.isfinite(arr.astype(np.float64, copy=False)).all():
+                raise Tron1Error(f"{where}: the policy's weights are not finite (NaN or inf in {init.name})")
+
+
+def onnx_policy(model, path: Path) -> Policy:
+    """A :class:`Policy` of an in-memory ONNX model (its contract and graph checked)."""
+    import onnxruntime as ort
+
     from tron1cli.train.runner import RunConfig
 
+    contract = pc.from_metadata({p.key: p.value for p in model.metadata_props}, str(path))
+    check_graph(model, contract, str(path))
+    try:
+        run_cfg = RunConfig.from_dict(contract["run_config"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise Tron1Error(f"{path}: the contract's run configuration is unreadable ({e})") from e
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    opts.inter_op_num_threads = 1
+    try:
+        sess = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime's own error types
+        raise Tron1Error(f"{path}: onnxruntime cannot load the graph ({_short(e)})") from e
+    return Policy(path, "onnx", contract, run_cfg, _ort=sess)
+
+
+def load_policy(path: Path | str) -> Policy:
+    """Load ``path`` (a ``.pt`` checkpoint or an ``.onnx`` export); bad files raise Tron1Error."""
     path = Path(path)
     if not path.is_file():
         raise Tron1Error(f"policy not found: {path}")
     if path.suffix == ".onnx":
         import onnx
-        import onnxruntime as ort
 
         try:
             model = onnx.load(str(path))
         except Exception as e:  # protobuf raises its own DecodeError types
             raise Tron1Error(f"cannot read ONNX file {path}: {type(e).__name__}") from e
-        contract = pc.from_metadata({p.key: p.value for p in model.metadata_props}, str(path))
-        names_in = [i.name for i in model.graph.input]
-        names_out = [o.name for o in model.graph.output]
-        if names_in != list(pc.INPUTS) or names_out != list(pc.OUTPUTS):
-            raise Tron1Error(
-                f"{path}: graph inputs {names_in} / outputs {names_out} do not match the contract "
-                f"{list(pc.INPUTS)} / {list(pc.OUTPUTS)}"
-            )
-        try:
-            run_cfg = RunConfig.from_dict(contract["run_config"])
-        except (KeyError, TypeError, ValueError) as e:
-            raise Tron1Error(f"{path}: the contract's run configuration is unreadable ({e})") from e
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = 1
-        opts.inter_op_num_threads = 1
-        sess = ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        return Policy(path, "onnx", contract, run_cfg, _ort=sess)
+        return onnx_policy(model, path)
     student, run_cfg, state = load_student(path)
     contract = pc.build_contract(run_cfg, int(state["learner"]["config"]["gru_hidden"]), str(path))
     return Policy(path, "checkpoint", contract, run_cfg, _torch=student)
