@@ -58,6 +58,10 @@ def bench(
 
     try:
         resolve_terrain(terrain)
+        from tron1cli.config import EnvConfig
+        from tron1cli.evaluation.protocol import check_level
+
+        check_level(level, EnvConfig().terrain_cfg.num_levels)
     except ValueError as e:
         fail(str(e), 2)
     threads = threads or available_cores()

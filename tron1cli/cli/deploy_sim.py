@@ -8,7 +8,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import SEED_MAX, err, fail, out, print_json, terrain_help
+from tron1cli.cli.common import SEED_MAX, check_outputs, err, fail, out, print_json, rerun_file, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -85,6 +85,7 @@ def deploy_sim(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    check_outputs(files=[rerun_file(target)], inputs=[x for x in (policy, cmd_file) if x is not None])
     if viewer:
         check_display()
     cfg = DeployConfig(

@@ -12,7 +12,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import SEED_MAX, err, fail, out, print_json, terrain_help
+from tron1cli.cli.common import SEED_MAX, check_outputs, err, fail, out, print_json, rerun_file, terrain_help
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -82,6 +82,7 @@ def progress_bar(total: int, what: str):
         TimeElapsedColumn(),
         console=err,
         transient=True,
+        disable=not err.is_terminal,  # a log gets no bar (and no blank line where it stood)
     )
     task = prog.add_task(what, total=total, now="")
     done = [0]
@@ -93,8 +94,29 @@ def progress_bar(total: int, what: str):
 
         return on_step
 
+    advance.done = done  # policy steps run so far (for the interrupted message)
     with prog:
         yield advance
+
+
+def interrupted(cmd: str, done: int, total: int, target, out_dir) -> None:
+    """Ctrl-C during the batches: one line saying so and what was written, exit 130."""
+    wrote = "no results written" + (f" (--out {out_dir} untouched)" if out_dir is not None else "")
+    if target is not None and target.kind == "save":
+        wrote += f"; the rerun recording {target.arg} holds what was streamed"
+    fail(f"{cmd} interrupted after {done:,} of {total:,} policy steps: {wrote}", 130)
+
+
+def check_levels(loaded: dict, level: int) -> None:
+    """Exit 2 unless --level names a level of every policy's terrain generator."""
+    from tron1cli.evaluation.protocol import check_level
+
+    try:
+        for pols in loaded.values():
+            for p in pols:
+                check_level(level, p.run_cfg.env.terrain_cfg.num_levels)
+    except ValueError as e:
+        fail(str(e), 2)
 
 
 def _fmt(m: dict, pct: bool) -> str:
@@ -174,7 +196,10 @@ def eval_cmd(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    inputs = [p for paths in groups.values() for p in paths]
+    check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    check_levels(loaded, level)
     try:  # a sweep speed must lie inside every policy's training command range
         for pols in loaded.values():
             for p in pols:
@@ -191,31 +216,37 @@ def eval_cmd(
     by_speed: dict = {dim: {label: {t: {} for t in terrains} for label in loaded} for dim in plan}
     stream = open_stream(target, recording_name="tron1 eval")
     with progress_bar(total, "eval") as advance:
-        for label, pols in loaded.items():
-            for t in terrains:
-                runs = []
-                for p in pols:
-                    spec = EvalSpec(t, level, envs, steps, randomize, seed=seed)
-                    runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream))
-                    if stream is not None:  # the first batch only: one episode on one timeline
-                        stream.close()
-                        stream = None
-                results[label][t] = {m: aggregate([r.metrics[m] for r in runs]) for m in METRICS}
-                coverage[label][t] = _coverage(runs)
-                for dim, values in plan.items():
-                    unit = SPEED_DIMS[dim].unit
-                    for v in values:
-                        sr = [
-                            run_batch(
-                                p,
-                                EvalSpec(t, level, envs, steps, randomize, v, seed, speed_dim=dim),
-                                advance(f"{label} {t} {dim} {v:g} {unit}"),
-                            )
-                            for p in pols
-                        ]
-                        by_speed[dim][label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
-                        _warn_left(sr, f"{label} {t} {dim}:{v:g}")
-                _warn_left(runs, f"{label} {t}")
+        try:
+            for label, pols in loaded.items():
+                for t in terrains:
+                    runs = []
+                    for p in pols:
+                        spec = EvalSpec(t, level, envs, steps, randomize, seed=seed)
+                        runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream))
+                        if stream is not None:  # the first batch only: one episode on one timeline
+                            stream.close()
+                            stream = None
+                    results[label][t] = {m: aggregate([r.metrics[m] for r in runs]) for m in METRICS}
+                    coverage[label][t] = _coverage(runs)
+                    for dim, values in plan.items():
+                        unit = SPEED_DIMS[dim].unit
+                        for v in values:
+                            sr = [
+                                run_batch(
+                                    p,
+                                    EvalSpec(t, level, envs, steps, randomize, v, seed, speed_dim=dim),
+                                    advance(f"{label} {t} {dim} {v:g} {unit}"),
+                                )
+                                for p in pols
+                            ]
+                            by_speed[dim][label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
+                            _warn_left(sr, f"{label} {t} {dim}:{v:g}")
+                    _warn_left(runs, f"{label} {t}")
+        except KeyboardInterrupt:
+            if stream is not None:
+                stream.close()
+            interrupted("eval", advance.done[0], total, target, out_dir)
+
     first = next(iter(next(iter(coverage.values())).values()))
     report = {
         "protocol": {
@@ -244,6 +275,7 @@ def eval_cmd(
             }
             for dim in plan
         }
+    replaced = out_dir is not None and (out_dir / "results.json").exists()
     if out_dir is not None:
         _write_eval_outputs(out_dir, report, by_speed)
     if as_json:
@@ -274,7 +306,7 @@ def eval_cmd(
                 table.add_row(f"{label} / {t}", *(_fmt(by_speed[dim][label][t][v], True) for v in values))
         out.print(table)
     if out_dir is not None:
-        out.print(f"results written to {out_dir}/")
+        out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
 
 
 def _coverage(runs: list) -> dict:
@@ -385,7 +417,10 @@ def push_test(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    inputs = [p for paths in groups.values() for p in paths]
+    check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    check_levels(loaded, level)
     stream = open_stream(target, recording_name=f"tron1 push-test {proto.name}")
     steps = proto.steps(next(iter(loaded.values()))[0].run_cfg.env.policy_dt)
     survival: dict = {}
@@ -393,21 +428,28 @@ def push_test(
     exposure: dict = {}
     coverage: dict = {}
     per_type = (envs // len(PUSH_TYPES), -(-envs // len(PUSH_TYPES)))
-    with progress_bar(steps * sum(len(v) for v in loaded.values()), "push-test") as advance:
-        for label, pols in loaded.items():
-            res = []
-            for p in pols:
-                res.append(
-                    run_push_test(p, proto, envs, level, seed, randomize, advance(label), stream, watch)
-                )
-                if stream is not None:  # the first policy only
-                    stream.close()
-                    stream = None
-            survival[label] = {k: aggregate([r.survival[k] for r in res]) for k in PUSH_TYPES}
-            overall[label] = aggregate([r.survival_rate for r in res])
-            exposure[label] = aggregate([r.exposure_s for r in res])
-            coverage[label] = _coverage([r.batch for r in res])
-            _warn_left([r.batch for r in res], label)
+    total = steps * sum(len(v) for v in loaded.values())
+    with progress_bar(total, "push-test") as advance:
+        try:
+            for label, pols in loaded.items():
+                res = []
+                for p in pols:
+                    res.append(
+                        run_push_test(p, proto, envs, level, seed, randomize, advance(label), stream, watch)
+                    )
+                    if stream is not None:  # the first policy only
+                        stream.close()
+                        stream = None
+                survival[label] = {k: aggregate([r.survival[k] for r in res]) for k in PUSH_TYPES}
+                overall[label] = aggregate([r.survival_rate for r in res])
+                exposure[label] = aggregate([r.exposure_s for r in res])
+                coverage[label] = _coverage([r.batch for r in res])
+                _warn_left([r.batch for r in res], label)
+        except KeyboardInterrupt:
+            if stream is not None:
+                stream.close()
+            interrupted("push-test", advance.done[0], total, target, out_dir)
+
     report = {
         "protocol": {
             "name": proto.name,
@@ -441,6 +483,7 @@ def push_test(
         (only,) = report["methods"].values()
         report["survival_rate"] = only["survival_rate"]
         report["per_push"] = only["per_push"]
+    replaced = out_dir is not None and (out_dir / "results.json").exists()
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "results.json").write_text(json.dumps(report, indent=2))
@@ -471,4 +514,4 @@ def push_test(
     table.add_row("[bold]overall (pushed)", *(_fmt(overall[label], True) for label in loaded))
     out.print(table)
     if out_dir is not None:
-        out.print(f"results written to {out_dir}/")
+        out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))

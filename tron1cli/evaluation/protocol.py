@@ -81,6 +81,12 @@ def check_speed_form(dim: str, value: float | None = None) -> None:
         raise ValueError(f"speed {dim}:{value} is not a finite number")
 
 
+def check_level(level: int, num_levels: int) -> None:
+    """ValueError unless ``level`` names one of ``num_levels`` levels (negative: from the hardest)."""
+    if not -num_levels <= level < num_levels:
+        raise ValueError(f"--level {level} outside 0..{num_levels - 1} (or -1 for the hardest)")
+
+
 def check_speed(commands: CommandConfig, dim: str, value: float) -> None:
     """Refuse (ValueError) an unknown dimension, a non-finite value, or one outside the policy's
     training command range ``commands`` for that dimension."""

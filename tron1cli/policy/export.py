@@ -108,9 +108,7 @@ def export_onnx(
     return ExportReport(out, parity_steps, worst, diffs, out.stat().st_size)
 
 
-def parity(
-    ref: Policy | Path, ort: Policy | Path, steps: int, num_envs: int = 2
-) -> dict[str, float]:
+def parity(ref: Policy | Path, ort: Policy | Path, steps: int, num_envs: int = 2) -> dict[str, float]:
     """Largest |onnx - torch| per output over a ``steps``-long recurrent rollout in the policy's env.
 
     ref, ort: the torch and the onnxruntime policy (or their files). A non-finite output of
