@@ -234,6 +234,10 @@ def test_a_non_finite_loss_stops_training(tmp_path):
         (["push-test", "{ckpt}", "--level", "-11"], 2, "--level -11 outside 0..9"),
         (["bench", "--level", "99"], 2, "--level 99 outside 0..9"),
         (["eval", "{ckpt}", "--speeds", "nan"], 2, "not a finite number"),
+        (["deploy-sim", "{ckpt}", "--depth-latency-ms", "inf"], 2, "inf is not a finite number"),
+        (["train", "--critic-weights", "stable=nan"], 2, "stable=nan is not a finite number"),
+        (["train", "--minutes", "nan"], 2, "--minutes"),
+        (["export-onnx", "{ckpt}", "--tol", "nan"], 2, "--tol"),
     ],
 )
 def test_one_line_not_a_traceback(tiny_ckpt, tmp_path, args, code, text):

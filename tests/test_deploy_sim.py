@@ -176,8 +176,8 @@ def _tampered_layout(src, path):
     model = onnx.load(str(src))
     for p in model.metadata_props:
         if p.key == "obs_layout":
-            layout = json.loads(p.value)
-            layout["history_len"] = layout["history_len"] + 1
+            layout = json.loads(p.value)  # self-consistent (sizes agree), but not the env's scaling
+            layout["proprio"][0][2] = 2.0 * layout["proprio"][0][2]
             p.value = json.dumps(layout)
     onnx.save(model, str(path))
     return path

@@ -126,3 +126,14 @@ def route_mujoco_warnings() -> None:
 
 #: the largest --seed (numpy, torch and the terrain generator all take 32-bit seeds)
 SEED_MAX = 2**32 - 1
+
+
+def finite(value: float | None) -> float | None:
+    """Option callback: refuse nan and inf (a range check lets NaN through: it compares false)."""
+    import math
+
+    import typer
+
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"{value} is not a finite number")
+    return value

@@ -8,7 +8,17 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import SEED_MAX, check_outputs, err, fail, out, print_json, rerun_file, terrain_help
+from tron1cli.cli.common import (
+    SEED_MAX,
+    check_outputs,
+    err,
+    fail,
+    finite,
+    out,
+    print_json,
+    rerun_file,
+    terrain_help,
+)
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -33,7 +43,7 @@ def deploy_sim(
         help="Timed commands: CSV lines t_s,vx,vy,yaw, each holding until the next.",
     ),
     push: str = typer.Option("none", "--push", help="Random pushes on the base: none, moderate or extreme."),
-    duration: float = typer.Option(10.0, "--duration", min=0.02, help="Simulated seconds."),
+    duration: float = typer.Option(10.0, "--duration", callback=finite, min=0.02, help="Simulated seconds."),
     realtime: bool = typer.Option(
         False, "--realtime", help="Pace the loop to the wall clock [default: as fast as possible]."
     ),
@@ -42,11 +52,12 @@ def deploy_sim(
     ),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Proprioceptive and depth sensor noise."),
     depth_latency_ms: float = typer.Option(
-        0.0, "--depth-latency-ms", min=0.0, help="Latency added to every depth frame (ms)."
+        0.0, "--depth-latency-ms", callback=finite, min=0.0, help="Latency added to every depth frame (ms)."
     ),
     physics_hz: float | None = typer.Option(
         500.0,
         "--physics-hz",
+        callback=finite,
         min=1.0,
         help="Physics and PD rate, a multiple of the policy's 50 Hz: 500 (the robot's loop) or 1000.",
     ),

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import check_outputs, err, fail, note, out, print_json
+from tron1cli.cli.common import check_outputs, err, fail, finite, note, out, print_json
 
 
 def export_onnx(
@@ -16,7 +16,9 @@ def export_onnx(
         None, "--output", "-o", help="ONNX file [default: beside the checkpoint]."
     ),
     parity_steps: int = typer.Option(200, "--parity-steps", min=1, help="Recurrent rollout steps compared."),
-    tol: float = typer.Option(1e-4, "--tol", min=0.0, help="Largest |onnxruntime - torch| allowed."),
+    tol: float = typer.Option(
+        1e-4, "--tol", callback=finite, min=0.0, help="Largest |onnxruntime - torch| allowed."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
 ) -> None:
     """Export the student (both estimators, normalisation baked in, mean action) and verify it.

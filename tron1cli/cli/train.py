@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import signal
 from dataclasses import replace
 from pathlib import Path
@@ -17,6 +18,7 @@ from tron1cli.cli.common import (
     check_outputs,
     err,
     fail,
+    finite,
     out,
     rerun_file,
     resolve_device,
@@ -81,7 +83,7 @@ def train(
         show_default=False,
     ),
     teacher_ratio: float = typer.Option(
-        0.5, "--teacher-ratio", min=0.0, max=1.0, help="Share of teacher envs."
+        0.5, "--teacher-ratio", callback=finite, min=0.0, max=1.0, help="Share of teacher envs."
     ),
     gait_prior: bool = typer.Option(
         True,
@@ -93,7 +95,9 @@ def train(
         "256,128,64", "--hidden", help="Actor and critic MLP sizes (paper: 512,256,128)."
     ),
     save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
-    minutes: float = typer.Option(None, "--minutes", min=0.0, help="Stop after this much wall-clock time."),
+    minutes: float = typer.Option(
+        None, "--minutes", callback=finite, min=0.0, help="Stop after this much wall-clock time."
+    ),
     threads: int = typer.Option(
         None,
         "--threads",
@@ -207,6 +211,9 @@ def train(
             }
         except ValueError:
             fail(f"--critic-weights wants GROUP=NUMBER pairs separated by commas, got '{critic_weights}'", 2)
+        bad = [k for k, w in weights.items() if not (math.isfinite(w) and w >= 0)]
+        if bad:
+            fail(f"--critic-weights: {bad[0]}={weights[bad[0]]} is not a finite number >= 0", 2)
         unknown = sorted(set(weights) - set(groups))
         if unknown:
             known = ", ".join(groups)
