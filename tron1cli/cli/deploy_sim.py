@@ -8,7 +8,17 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, out, print_json, terrain_help
+from tron1cli.cli.common import (
+    VIDEO_HELP,
+    VIDEO_SIZE_HELP,
+    err,
+    fail,
+    open_video,
+    out,
+    print_json,
+    render_video,
+    terrain_help,
+)
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -58,6 +68,12 @@ def deploy_sim(
     rerun: str = typer.Option(
         "off", "--rerun", help="Stream the run to rerun: spawn, save=FILE.rrd, connect[=URL] or off."
     ),
+    video: Path | None = typer.Option(
+        None, "--video", metavar="FILE.mp4", help=VIDEO_HELP + "the robot, a camera following it."
+    ),
+    video_size: str | None = typer.Option(
+        None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
+    ),
 ) -> None:
     """Run POLICY in MuJoCo: physics with PD at the physics rate, the policy at 50 Hz, the depth camera
     rendered in its own thread at 30 Hz with the newest ready frame handed to the policy.
@@ -85,6 +101,9 @@ def deploy_sim(
         fail(str(e), 2)
     if viewer:
         check_display()
+    from tron1cli.viz.video import DEFAULT_SIZE
+
+    recorder = open_video(video, video_size, DEFAULT_SIZE)
     cfg = DeployConfig(
         terrain=terrain,
         level=level,
@@ -102,7 +121,10 @@ def deploy_sim(
     pol = load_policy(policy)
     stream = open_stream(target, recording_name=f"tron1 deploy-sim {policy.name}")
     with err.status("setting up the env and the depth thread..."):
-        sim = DeploySim(pol, cfg, stream)
+        take = None
+        if recorder is not None:
+            take = recorder.take([0], caption=f"{policy.name} on {terrain} level {level}, cmd {cmd or '0.5,0,0'}")
+        sim = DeploySim(pol, cfg, stream, take)
     progress = Progress(
         TextColumn("[bold]deploy-sim"),
         MofNCompleteColumn(),
@@ -134,8 +156,9 @@ def deploy_sim(
         )
     if as_json:
         print_json(rep)
-        return
-    out.print(_table(rep))
+    else:
+        out.print(_table(rep))
+    render_video(recorder)
 
 
 def _table(rep: dict) -> Table:
