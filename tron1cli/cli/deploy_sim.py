@@ -123,7 +123,9 @@ def deploy_sim(
     with err.status("setting up the env and the depth thread..."):
         take = None
         if recorder is not None:
-            take = recorder.take([0], caption=f"{policy.name} on {terrain} level {level}, cmd {cmd or '0.5,0,0'}")
+            take = recorder.take(
+                [0], caption=f"{policy.name} on {terrain} level {level}, cmd {cmd or '0.5,0,0'}"
+            )
         sim = DeploySim(pol, cfg, stream, take)
     progress = Progress(
         TextColumn("[bold]deploy-sim"),

@@ -357,7 +357,9 @@ def _video_model(ground: dict[str, Any], size: tuple[int, int]):
     )
     x, y = ground.get("pos", (0.0, 0.0))
     below = dict(style, name="below")  # beyond the cropped field: a plane at its lowest level
-    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], pos=[0, 0, ground["z"] - 0.03], **below)
+    spec.worldbody.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], pos=[0, 0, ground["z"] - 0.03], **below
+    )
     spec.worldbody.add_geom(
         type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain", pos=[x, y, ground["z"]], **style
     )
@@ -395,7 +397,12 @@ def _arrow(mujoco: Any, scn: Any, a: np.ndarray, b: np.ndarray, width: float, rg
         return
     g = scn.geoms[scn.ngeom]
     mujoco.mjv_initGeom(
-        g, mujoco.mjtGeom.mjGEOM_ARROW, np.zeros(3), np.zeros(3), np.eye(3).ravel(), np.asarray(rgba, np.float32)
+        g,
+        mujoco.mjtGeom.mjGEOM_ARROW,
+        np.zeros(3),
+        np.zeros(3),
+        np.eye(3).ravel(),
+        np.asarray(rgba, np.float32),
     )
     mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_ARROW, width, a, b)
     scn.ngeom += 1
@@ -459,7 +466,9 @@ def _legend(img: np.ndarray, px: int) -> np.ndarray:
     for name, rgba in items:
         c = tuple(int(255 * v) for v in rgba[:3])
         d.rectangle([x, y + 2, x + px - 2, y + px], fill=c)
-        d.text((x + px + 2, y), name, fill=(240, 240, 240), font=font, stroke_width=2, stroke_fill=(20, 20, 20))
+        d.text(
+            (x + px + 2, y), name, fill=(240, 240, 240), font=font, stroke_width=2, stroke_fill=(20, 20, 20)
+        )
         x += px + 8 + int(d.textlength(name, font=font))
     return np.asarray(im)
 
@@ -529,14 +538,18 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
                         r.update_scene(data, camera=cam.follow(a["qpos"][k], 1.0 / fps))
                         _overlays(mujoco, r.scene, a["qpos"][k], a["cmd"][k], a["vel"][k], a["wrench"][k])
                         img = r.render()
-                        lines = _view_text(label, k / fps, a["cmd"][k], a["vel"][k], a["wrench"][k], a["ended"][k])
+                        lines = _view_text(
+                            label, k / fps, a["cmd"][k], a["vel"][k], a["wrench"][k], a["ended"][k]
+                        )
                         img = _text(img, lines, px)
                         rr, cc = divmod(j, cols)
                         frame[rr * th : rr * th + th, cc * tw : cc * tw + tw] = img
-                    bottom = max(12, height // 34)
+                    bottom = max(12, min(height // 34, 18))
                     frame = _legend(frame, bottom)
                     if seg["caption"]:
-                        frame = _text(frame, [(seg["caption"], (255, 230, 120))], bottom, "bottom", bottom + 8)
+                        frame = _text(
+                            frame, [(seg["caption"], (255, 230, 120))], bottom, "bottom", bottom + 8
+                        )
                     t1 = time.perf_counter()
                     for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
                         container.mux(packet)
