@@ -13,9 +13,10 @@ gets ``MUJOCO_GL`` set before its first import. :func:`gl_backends` picks ``egl`
 ``MUJOCO_GL`` set by the user is taken as it is. Each view gets a copy of its env's ground (the
 height field cropped to where the robot went) with a checker texture, a low sun so that step
 edges shade, the left foot orange and the right foot blue, the commanded (green) and measured
-(blue) planar velocity as arrows above the base, a push as a magenta (force) or purple (torque)
-arrow while it acts, and a camera that follows the base and, slowly, its heading. Frames are
-encoded to H.264 by PyAV (FFmpeg's libraries, in its wheel).
+(blue, mean over the last 0.5 s: about one gait cycle) planar velocity as arrows above the base,
+a push as a magenta (force) or purple (torque) arrow while it acts, and a camera that follows the
+base and, slowly, its heading. Frames are encoded to H.264 by PyAV (FFmpeg's libraries, in its
+wheel).
 """
 
 from __future__ import annotations
@@ -156,6 +157,14 @@ def _world_command(env: Tron1Env, i: int) -> np.ndarray:
     return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], float(v[2])])
 
 
+def _trailing_mean(x: np.ndarray, n: int) -> np.ndarray:
+    """Mean of each row of ``x`` (F, d) and the ``n - 1`` before it (fewer at the start)."""
+    c = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), x]), axis=0)
+    k = np.arange(1, len(x) + 1)
+    lo = np.maximum(k - n, 0)
+    return (c[k] - c[lo]) / (k - lo)[:, None]
+
+
 def _lerp_qpos(a: np.ndarray, b: np.ndarray, w: float) -> np.ndarray:
     q = a + w * (b - a)
     qa, qb = a[3:7], b[3:7]
@@ -178,7 +187,7 @@ class Take:
         self.frames = 0
 
     def start(self, env: Tron1Env) -> None:
-        """Snapshot each view's ground and the first frame (t = 0)."""
+        """Snapshot each view's ground and its state at t = 0 (the first frame's)."""
         self.views = [_View(i, lab, _ground(env, i)) for i, lab in zip(self.envs, self.labels, strict=True)]
         self._sample(env, 0.0, None)
 
@@ -189,7 +198,7 @@ class Take:
 
     def _sample(self, env: Tron1Env, t_s: float, done: np.ndarray | None) -> None:
         fps = self.recorder.fps
-        n_new = int(math.floor(t_s * fps + 1e-6)) + 1 - self.frames
+        n_new = max(0, int(math.ceil(t_s * fps - 1e-6)) - self.frames)  # frames at k / fps < t_s
         for v in self.views:
             if not v.done and done is not None and bool(done[v.env]):
                 v.done = True  # the state now is the reset one: hold the last pose
@@ -218,7 +227,7 @@ class Take:
                 v.wrench.append(wrench)
                 v.ended.append(False)
             v.last = (t_s, q)
-        self.frames += max(0, n_new)
+        self.frames += n_new
 
     def stop(self) -> None:
         """End the segment (it joins the recorder's video)."""
@@ -261,7 +270,7 @@ class VideoRecorder:
                 views.append({"label": v.label, "ground": {k: g for k, g in ground.items() if k != "data"}})
                 arrays[key + "_qpos"] = qpos
                 arrays[key + "_cmd"] = np.asarray(v.cmd[: take.frames])
-                arrays[key + "_vel"] = np.asarray(v.vel[: take.frames])
+                arrays[key + "_vel"] = _trailing_mean(np.asarray(v.vel[: take.frames]), self.fps // 2)
                 arrays[key + "_wrench"] = np.asarray(v.wrench[: take.frames])
                 arrays[key + "_ended"] = np.asarray(v.ended[: take.frames])
             segments.append({"caption": take.caption, "frames": take.frames, "views": views})
@@ -307,7 +316,7 @@ class VideoRecorder:
 
 
 def _video_model(ground: dict[str, Any], size: tuple[int, int]):
-    """The robot on a copy of ``ground``: checker-textured, a low sun, the feet coloured."""
+    """The robot on a copy of ``ground``: checker-textured, a low sun (no shadows), the feet coloured."""
     import mujoco
 
     from tron1cli.env import robot
@@ -317,11 +326,10 @@ def _video_model(ground: dict[str, Any], size: tuple[int, int]):
     spec.visual.global_.offheight = max(size[1], 64)
     spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
     spec.visual.headlight.diffuse = [0.25, 0.25, 0.25]
-    spec.visual.quality.shadowsize = 2048
     for light in spec.worldbody.lights:  # the model's sun, from straight above: lower it
         light.dir = SUN_DIR
         light.diffuse = [0.85, 0.85, 0.8]
-        light.castshadow = True
+        light.castshadow = False  # a shadow pass doubles the software render time
     for g in spec.geoms:
         if g.name in FOOT_RGBA:
             g.rgba = FOOT_RGBA[g.name]
@@ -478,7 +486,7 @@ def _view_text(
 ) -> list[tuple[str, tuple[int, int, int]]]:
     lines = [(f"{label}  t = {t:4.2f} s" if label else f"t = {t:5.2f} s", (245, 245, 245))]
     lines.append((f"cmd {math.hypot(cmd[0], cmd[1]):.2f} m/s, yaw {cmd[2]:+.2f} rad/s", (120, 235, 140)))
-    lines.append((f"measured {math.hypot(vel[0], vel[1]):.2f} m/s", (130, 175, 255)))
+    lines.append((f"measured {math.hypot(vel[0], vel[1]):.2f} m/s (0.5 s mean)", (130, 175, 255)))
     if np.any(wrench[:3]):
         lines.append((f"push {np.linalg.norm(wrench[:3]):.0f} N", (240, 110, 220)))
     if np.any(wrench[3:]):
