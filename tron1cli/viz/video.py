@@ -303,7 +303,7 @@ class VideoRecorder:
                 if proc.returncode != BACKEND_MISSING_RC:
                     raise VideoError(f"--video: rendering failed (MUJOCO_GL={backend}): {last}")
                 tried.append(f"MUJOCO_GL={backend}: {last}")
-        pkg = BACKEND_PACKAGES.get(tried and backend or "osmesa", "an OpenGL library for MuJoCo")
+        pkg = BACKEND_PACKAGES.get(backend, "an OpenGL library for MuJoCo")  # the last one tried
         raise VideoError(
             f"--video: no offscreen OpenGL for MuJoCo ({'; '.join(tried)}); install {pkg}, "
             f"e.g. apt-get install -y {pkg.split()[0]}",
