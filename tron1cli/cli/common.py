@@ -137,3 +137,43 @@ def finite(value: float | None) -> float | None:
     if value is not None and not math.isfinite(value):
         raise typer.BadParameter(f"{value} is not a finite number")
     return value
+
+
+VIDEO_HELP = "Record an MP4 video (30 fps, real time) to this file: "
+VIDEO_SIZE_HELP = "Video frame size WIDTHxHEIGHT (even numbers)"
+
+
+def open_video(path, size: str | None, default: tuple[int, int]):
+    """A :class:`tron1cli.viz.video.VideoRecorder` for ``--video PATH --video-size WxH``; None
+    without ``--video``. Exits 2 on a bad path or size (before the run)."""
+    if path is None:
+        return None
+    from tron1cli.viz.video import VideoRecorder, check_video_path, parse_size
+
+    try:
+        check_video_path(path)
+        wh = parse_size(size) if size else default
+    except ValueError as e:
+        fail(str(e), 2)
+    return VideoRecorder(path, wh)
+
+
+def render_video(recorder) -> None:
+    """Render and encode a recorded video after the run's results are out; a missing OpenGL
+    backend or a failed render is one line on stderr and exit code 1."""
+    if recorder is None:
+        return
+    from tron1cli.viz.video import VideoError
+
+    try:
+        with err.status(f"rendering {recorder.frames} video frames..."):
+            st = recorder.render()
+    except VideoError as e:
+        fail(str(e), 1)
+    err.print(
+        f"video: {st['path']} ({st['frames']} frames, {st['width']}x{st['height']}, {st['fps']} fps; "
+        f"MUJOCO_GL={st['backend']}: {st['render_ms_per_frame']:.0f} ms a frame to render, "
+        f"{st['encode_ms_per_frame']:.1f} ms to encode)",
+        highlight=False,
+        soft_wrap=True,
+    )

@@ -10,12 +10,16 @@ from rich.table import Table
 
 from tron1cli.cli.common import (
     SEED_MAX,
+    VIDEO_HELP,
+    VIDEO_SIZE_HELP,
     check_outputs,
     err,
     fail,
     finite,
+    open_video,
     out,
     print_json,
+    render_video,
     rerun_file,
     terrain_help,
 )
@@ -71,6 +75,12 @@ def deploy_sim(
     rerun: str = typer.Option(
         "off", "--rerun", help="Stream the run to rerun: spawn, save=FILE.rrd, connect[=URL] or off."
     ),
+    video: Path | None = typer.Option(
+        None, "--video", metavar="FILE.mp4", help=VIDEO_HELP + "the robot, a camera following it."
+    ),
+    video_size: str | None = typer.Option(
+        None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
+    ),
 ) -> None:
     """Run POLICY in MuJoCo: physics with PD at the physics rate, the policy at 50 Hz, the depth camera
     rendered in its own thread at 30 Hz with the newest ready frame handed to the policy.
@@ -99,6 +109,9 @@ def deploy_sim(
     check_outputs(files=[rerun_file(target)], inputs=[x for x in (policy, cmd_file) if x is not None])
     if viewer:
         check_display()
+    from tron1cli.viz.video import DEFAULT_SIZE
+
+    recorder = open_video(video, video_size, DEFAULT_SIZE)
     cfg = DeployConfig(
         terrain=terrain,
         level=level,
@@ -116,7 +129,12 @@ def deploy_sim(
     pol = load_policy(policy)
     stream = open_stream(target, recording_name=f"tron1 deploy-sim {policy.name}")
     with err.status("setting up the env and the depth thread..."):
-        sim = DeploySim(pol, cfg, stream)
+        take = None
+        if recorder is not None:
+            take = recorder.take(
+                [0], caption=f"{policy.name} on {terrain} level {level}, cmd {cmd or '0.5,0,0'}"
+            )
+        sim = DeploySim(pol, cfg, stream, take)
     progress = Progress(
         TextColumn("[bold]deploy-sim"),
         MofNCompleteColumn(),
@@ -148,8 +166,9 @@ def deploy_sim(
         )
     if as_json:
         print_json(rep)
-        return
-    out.print(_table(rep))
+    else:
+        out.print(_table(rep))
+    render_video(recorder)
 
 
 def _table(rep: dict) -> Table:

@@ -12,7 +12,20 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tron1cli.cli.common import SEED_MAX, check_outputs, err, fail, out, print_json, rerun_file, terrain_help
+from tron1cli.cli.common import (
+    SEED_MAX,
+    VIDEO_HELP,
+    VIDEO_SIZE_HELP,
+    check_outputs,
+    err,
+    fail,
+    open_video,
+    out,
+    print_json,
+    render_video,
+    rerun_file,
+    terrain_help,
+)
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -164,6 +177,16 @@ def eval_cmd(
         None, "--out", help="Write results.json, results.csv and plots here."
     ),
     rerun: str = typer.Option("off", "--rerun", help="Stream env 0 of the first batch: " + RERUN_FORMS),
+    video: Path | None = typer.Option(
+        None,
+        "--video",
+        metavar="FILE.mp4",
+        help=VIDEO_HELP
+        + "env 0 of each terrain's batch (the first policy of each method), one after another.",
+    ),
+    video_size: str | None = typer.Option(
+        None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
+    ),
 ) -> None:
     """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
 
@@ -198,6 +221,10 @@ def eval_cmd(
         fail(str(e), 2)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
+
+    from tron1cli.viz.video import DEFAULT_SIZE
+
+    recorder = open_video(video, video_size, DEFAULT_SIZE)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
     check_levels(loaded, level)
     try:  # a sweep speed must lie inside every policy's training command range
@@ -220,9 +247,13 @@ def eval_cmd(
             for label, pols in loaded.items():
                 for t in terrains:
                     runs = []
-                    for p in pols:
+                    for k, p in enumerate(pols):
                         spec = EvalSpec(t, level, envs, steps, randomize, seed=seed)
-                        runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream))
+                        take = None
+                        if recorder is not None and k == 0:
+                            lv = "hardest level" if level == -1 else f"level {level}"
+                            take = recorder.take([0], caption=f"{label} on {t}, {lv}, env 0 of {envs}")
+                        runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream, video=take))
                         if stream is not None:  # the first batch only: one episode on one timeline
                             stream.close()
                             stream = None
@@ -280,6 +311,7 @@ def eval_cmd(
         _write_eval_outputs(out_dir, report, by_speed)
     if as_json:
         print_json(report)
+        render_video(recorder)
         return
     table = Table(
         title="tron1 eval (Table I)",
@@ -307,6 +339,7 @@ def eval_cmd(
         out.print(table)
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
+    render_video(recorder)
 
 
 def _coverage(runs: list) -> dict:
@@ -392,6 +425,16 @@ def push_test(
     ),
     rerun: str = typer.Option("off", "--rerun", help="Stream one pushed env: " + RERUN_FORMS),
     watch: str = typer.Option("+Fx", "--watch", help="Push type of the env --rerun streams."),
+    video: Path | None = typer.Option(
+        None,
+        "--video",
+        metavar="FILE.mp4",
+        help=VIDEO_HELP + "the first env of every push type in a 4 x 4 grid, the push as an arrow "
+        "(the first policy of each method).",
+    ),
+    video_size: str | None = typer.Option(
+        None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " of the grid [default: 1280x960]."
+    ),
 ) -> None:
     """Push recovery (Fig. 6): one push per env at t = 2 s, survival 3 s after it, per push type.
 
@@ -405,6 +448,7 @@ def push_test(
     from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, run_push_test
     from tron1cli.policy.runtime import load_policy
     from tron1cli.viz.plots import push_survival
+    from tron1cli.viz.video import GRID_SIZE
 
     proto = PushProtocol.extreme() if extreme else PushProtocol.moderate()
     try:
@@ -419,6 +463,7 @@ def push_test(
         fail(str(e), 2)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
+    recorder = open_video(video, video_size, GRID_SIZE)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
     check_levels(loaded, level)
     stream = open_stream(target, recording_name=f"tron1 push-test {proto.name}")
@@ -433,9 +478,12 @@ def push_test(
         try:
             for label, pols in loaded.items():
                 res = []
-                for p in pols:
+                for k, p in enumerate(pols):
+                    rec = recorder if k == 0 else None
                     res.append(
-                        run_push_test(p, proto, envs, level, seed, randomize, advance(label), stream, watch)
+                        run_push_test(
+                            p, proto, envs, level, seed, randomize, advance(label), stream, watch, rec
+                        )
                     )
                     if stream is not None:  # the first policy only
                         stream.close()
@@ -500,6 +548,7 @@ def push_test(
         )
     if as_json:
         print_json(report)
+        render_video(recorder)
         return
     lo, hi = per_type
     per_push = f"{lo}" if lo == hi else f"{lo}-{hi}"
@@ -515,3 +564,4 @@ def push_test(
     out.print(table)
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
+    render_video(recorder)

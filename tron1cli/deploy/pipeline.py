@@ -134,12 +134,14 @@ class _Viewer:
 class DeploySim:
     """One deploy-sim run of ``policy`` under ``cfg``; :meth:`run` returns the report dict."""
 
-    def __init__(self, policy: Policy, cfg: DeployConfig, stream=None) -> None:
+    def __init__(self, policy: Policy, cfg: DeployConfig, stream=None, video=None) -> None:
         """``stream``: an optional rerun stream (:mod:`tron1cli.viz.rerun_stream`) fed every policy
-        step with the robot, the LIPM targets, the depth frame the policy used and h_hat."""
+        step with the robot, the LIPM targets, the depth frame the policy used and h_hat;
+        ``video``: an optional :class:`tron1cli.viz.video.Take` recording the robot."""
         self.policy = policy
         self.cfg = cfg
         self.stream = stream
+        self.video = video
         self.env = Tron1Env(self._env_config(), policy.run_cfg.reward)
         self.depth: DepthPipeline | None = None
         self.frame_ages_ms: list[float] = []
@@ -246,6 +248,8 @@ class DeploySim:
         ids = np.zeros(1, dtype=np.int64)
         lock = self.numba_lock or contextlib.nullcontext()
         obs = env.reset()
+        if self.video is not None:
+            self.video.start(env)
         hidden = pol.initial_hidden(1)
         d_in = pol.depth_input(obs, 1)
         pol.step(obs["history"], d_in, hidden)  # warm-up run of the runtime, not timed
@@ -285,6 +289,8 @@ class DeploySim:
             with lock:
                 res = env.step(action)
             steps = k + 1
+            if self.video is not None:
+                self.video.step(env, steps * dt, res.done)
             if res.done[0]:
                 ended = "unstable" if res.unstable[0] else "fell" if res.failed[0] else "edge"
                 break
@@ -318,6 +324,8 @@ class DeploySim:
                 on_step(steps, total)
         wall_s = time.perf_counter() - wall0
         sim_s = steps * dt
+        if self.video is not None:
+            self.video.stop()
         return self._report(
             sim_s=sim_s,
             wall_s=wall_s,

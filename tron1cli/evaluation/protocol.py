@@ -250,13 +250,17 @@ def run_batch(
     before_step: Callable[[Tron1Env, int], None] | None = None,
     stream=None,
     stream_env: int = 0,
+    video=None,
 ) -> EvalResult:
     """Run one batch; ``before_step(env, t)`` may set commands or wrenches (push tests);
-    ``stream`` (a :class:`tron1cli.viz.rerun_stream.RerunStream`) gets env ``stream_env`` each step."""
+    ``stream`` (a :class:`tron1cli.viz.rerun_stream.RerunStream`) gets env ``stream_env`` each step;
+    ``video`` (a :class:`tron1cli.viz.video.Take`) records its envs."""
     env = make_env(policy, spec)
     try:
         n = env.n
         obs = env.reset()
+        if video is not None:
+            video.start(env)
         hidden = policy.initial_hidden(n)
         fell = np.zeros(n, dtype=bool)
         left = np.zeros(n, dtype=bool)
@@ -277,6 +281,8 @@ def run_batch(
             if stream is not None:
                 stream.log_step(env, stream_env, t, t * env.policy_dt, extras={"h_hat": h_hat})
             res = env.step(action)
+            if video is not None:
+                video.step(env, (t + 1) * env.policy_dt, res.done)
             fell |= walking & (res.failed | res.unstable)
             # the episode outlasts the window, so a walking env's time-out is the tile's edge
             left |= walking & res.time_out
@@ -298,6 +304,8 @@ def run_batch(
             obs = res.obs
             if on_step is not None:
                 on_step(t + 1)
+        if video is not None:
+            video.stop()
         exposure = exposed * env.policy_dt
         metrics: dict[str, float | None] = {"success_rate": float(1.0 - (fell | left).mean())}
         for k in METRICS[1:4]:

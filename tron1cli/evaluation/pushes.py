@@ -104,9 +104,11 @@ def run_push_test(
     on_step: Callable[[int], None] | None = None,
     stream=None,
     watch: str = "+Fx",
+    video=None,
 ) -> PushResult:
     """One batch of ``num_envs`` under ``proto``; ``stream`` (rerun) gets the first env whose push
-    type is ``watch``."""
+    type is ``watch``; ``video`` (a :class:`tron1cli.viz.video.VideoRecorder`) gets one take of
+    the first env of every push type, side by side."""
     dt = policy.run_cfg.env.policy_dt
     spec = EvalSpec(
         terrain=proto.terrain,
@@ -130,8 +132,18 @@ def run_push_test(
         elif t == stop:
             env.external_wrench[:] = 0.0
 
+    take = None
+    if video is not None:
+        caption = f"{policy.path.name}: {proto.name} pushes at {proto.push_at_s:g} s on {proto.terrain}"
+        take = video.take(range(len(PUSH_TYPES)), PUSH_TYPES, caption)
     res = run_batch(
-        policy, spec, on_step=on_step, before_step=push, stream=stream, stream_env=PUSH_TYPES.index(watch)
+        policy,
+        spec,
+        on_step=on_step,
+        before_step=push,
+        stream=stream,
+        stream_env=PUSH_TYPES.index(watch),
+        video=take,
     )
     failed = res.failed  # fell, or (never expected) left the terrain under test
     survival = {name: float(1.0 - failed[types == t].mean()) for t, name in enumerate(PUSH_TYPES)}
