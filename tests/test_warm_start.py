@@ -6,27 +6,18 @@ import json
 
 import torch
 from conftest import tron1
+from test_learn_cts import make
 from test_train_cli import SMALL
 
-from tron1cli.learn import LearnerConfig, ObsDims
+from tron1cli.learn import ObsDims
 from tron1cli.learn.models import VisionCTS
 from tron1cli.learn.warm_start import warm_start
 
 torch.set_num_threads(1)
 GROUPS = ("stable", "loco")
-CFG = LearnerConfig(
-    actor_hidden=(16,),
-    critic_hidden=(16,),
-    encoder_hidden=(16,),
-    heightmap_encoder_hidden=(16,),
-    decoder_hidden=(16,),
-    depth_feature=8,
-    gru_hidden=8,
-    latent_e=4,
-    latent_h=6,
-)
 BLIND = ObsDims(5, 15, 7)
 PERCEPTIVE = ObsDims(5, 15, 7, heightmap=441, depth_hw=(12, 16))
+CFG = make(BLIND).cfg  # the small networks of the learner tests
 
 
 def test_perceptive_model_from_blind_weights_acts_and_values_as_the_blind_one():

@@ -16,19 +16,14 @@ from tron1cli.cli.common import (
     print_json,
     resolve_device,
     terrain_help,
+    threads_option,
 )
 
 
 def bench(
     envs: int = typer.Option(1024, "--envs", "-n", min=1, help="Number of parallel environments."),
     steps: int = typer.Option(100, "--steps", min=1, help="Timed policy steps (after 10 warm-up steps)."),
-    threads: int = typer.Option(
-        None,
-        "--threads",
-        min=1,
-        help="Physics (and with --train torch) threads [default: the cores available].",
-        show_default=False,
-    ),
+    threads: int = threads_option("Physics (and with --train torch) threads"),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Random seed."),
     terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
     depth: bool = typer.Option(

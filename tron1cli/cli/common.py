@@ -78,6 +78,15 @@ def print_json(obj: dict) -> None:
     sys.stdout.flush()
 
 
+def threads_option(what: str):
+    """The ``--threads`` option of a command (None: :func:`available_cores`)."""
+    import typer
+
+    return typer.Option(
+        None, "--threads", min=1, help=f"{what} [default: the cores available].", show_default=False
+    )
+
+
 def available_cores() -> int:
     """CPU cores this process may run on (its affinity mask; all cores where that is unknown)."""
     try:

@@ -23,6 +23,7 @@ from tron1cli.cli.common import (
     rerun_file,
     resolve_device,
     terrain_help,
+    threads_option,
 )
 from tron1cli.config.presets import PRESETS
 from tron1cli.env.randomization import ALL_TERMS
@@ -98,13 +99,7 @@ def train(
     minutes: float = typer.Option(
         None, "--minutes", callback=finite, min=0.0, help="Stop after this much wall-clock time."
     ),
-    threads: int = typer.Option(
-        None,
-        "--threads",
-        min=1,
-        help="Physics and torch threads [default: the cores available to this process].",
-        show_default=False,
-    ),
+    threads: int = threads_option("Physics and torch threads; a resumed run takes the value given now"),
     device: str = typer.Option(
         "cpu", "--device", help="Where the learner runs: cpu or cuda (the simulator stays on the CPU)."
     ),
