@@ -9,6 +9,7 @@ from typer.exceptions import TyperException
 
 from tron1cli import __version__
 from tron1cli.cli import bench as bench_cmd
+from tron1cli.cli import deploy_robot as deploy_robot_cmd
 from tron1cli.cli import deploy_sim as deploy_sim_cmd
 from tron1cli.cli import evaluate as evaluate_cmd
 from tron1cli.cli import export as export_cmd
@@ -49,10 +50,26 @@ app.command("push-test")(evaluate_cmd.push_test)
 app.command("export-onnx")(export_cmd.export_onnx)
 app.command("deploy-sim")(deploy_sim_cmd.deploy_sim)
 app.command("bench")(bench_cmd.bench)
+app.command("deploy-robot")(deploy_robot_cmd.deploy_robot)
+app.command("sim-robot")(deploy_robot_cmd.sim_robot)
 
 
 def main() -> None:
-    """Run the CLI: a user's mistake gives one line on stderr and exit 2, a runtime failure exit 1."""
+    """Run the CLI: a user's mistake gives one line on stderr and exit 2, a runtime failure exit 1.
+
+    A command that started LimX's SDK ends through :func:`tron1cli.deploy.sdk.leave` (no
+    interpreter teardown under the SDK's threads)."""
+    try:
+        _main()
+    except SystemExit as e:
+        from tron1cli.deploy import sdk
+
+        if sdk.in_use():
+            sdk.leave(e.code if isinstance(e.code, int) else 1)
+        raise
+
+
+def _main() -> None:
     try:
         route_mujoco_warnings()
         code = app(standalone_mode=False)

@@ -19,7 +19,7 @@ from tron1cli.env.curriculum import TerrainCurriculum
 from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
 from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
-from tron1cli.env.observations import ObsLayout, assemble
+from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
 from tron1cli.env.physics import BatchedPhysics
 from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
@@ -372,18 +372,21 @@ class Tron1Env:
         """Physical value of every observation term by name, each (N, dim)."""
         s = self.state
         return {
-            "base_ang_vel": s.base_ang_vel_b,
-            "projected_gravity": s.projected_gravity,
-            "joint_pos": s.joint_pos - robot.DEFAULT_POSE,
-            "joint_vel": s.joint_vel,
-            "command": self.commands.value,
-            "last_action": self.actions,
+            **proprio_values(
+                s.base_ang_vel_b,
+                s.projected_gravity,
+                s.joint_pos,
+                s.joint_vel,
+                self.commands.value,
+                self.actions,
+                robot.DEFAULT_POSE,
+                clock_observation(self.commands.gait_phase, self.commands.gait_freq),
+            ),
             "base_lin_vel": s.base_lin_vel_b,
             "joint_torque": s.joint_torque,
             "joint_acc": s.joint_acc,
             "foot_contact_force": s.foot_force.reshape(self.n, -1),
             "external_force": self.external_wrench[:, :3],
-            "gait_clock": clock_observation(self.commands.gait_phase, self.commands.gait_freq),
         }
 
     def desired_contact(self) -> np.ndarray:
@@ -402,12 +405,8 @@ class Tron1Env:
         proprio = assemble(lay.proprio_terms, values, noise, self.rng)
         privileged = assemble(lay.privileged_terms, values)
         if update_history:
-            hist = self._history
-            hist[:, :-1] = hist[:, 1:]
-            hist[:, -1] = proprio
-            if ids_reset is not None and len(ids_reset):
-                hist[ids_reset] = proprio[ids_reset, None, :]
-            history = hist.reshape(self.n, -1).copy()
+            push_history(self._history, proprio, ids_reset)
+            history = self._history.reshape(self.n, -1).copy()
         else:
             history = np.concatenate([self._history[:, 1:], proprio[:, None, :]], axis=1).reshape(self.n, -1)
         obs = {"proprio": proprio, "history": history, "privileged": privileged}

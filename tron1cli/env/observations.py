@@ -151,3 +151,43 @@ def assemble(
         out[:, a : a + t.dim] = v * t.scale
         a += t.dim
     return out
+
+
+def proprio_values(
+    ang_vel_b: np.ndarray,
+    projected_gravity: np.ndarray,
+    joint_pos: np.ndarray,
+    joint_vel: np.ndarray,
+    command: np.ndarray,
+    last_action: np.ndarray,
+    default_pose: np.ndarray,
+    gait_clock: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Physical values of the o_t terms by name, each (N, dim): the one mapping from robot
+    quantities to the student's observation, used by the env and by ``deploy-robot`` alike.
+
+    ang_vel_b: base angular velocity (rad/s, base frame); projected_gravity: unit gravity
+    direction in the base frame; joint_pos, joint_vel: rad, rad/s in the policy's joint order;
+    command: v_x, v_y (m/s), yaw rate (rad/s); last_action: the last applied action (unitless);
+    default_pose: rad, subtracted from joint_pos; gait_clock: (N, 3) sin, cos, frequency (Hz).
+    """
+    values = {
+        "base_ang_vel": ang_vel_b,
+        "projected_gravity": projected_gravity,
+        "joint_pos": joint_pos - default_pose,
+        "joint_vel": joint_vel,
+        "command": command,
+        "last_action": last_action,
+    }
+    if gait_clock is not None:
+        values["gait_clock"] = gait_clock
+    return values
+
+
+def push_history(hist: np.ndarray, proprio: np.ndarray, ids_reset: np.ndarray | None = None) -> None:
+    """Shift the (N, history_len, proprio_dim) history in place and append ``proprio`` (N, dim);
+    rows ``ids_reset`` (a new episode) are filled with ``proprio`` throughout."""
+    hist[:, :-1] = hist[:, 1:]
+    hist[:, -1] = proprio
+    if ids_reset is not None and len(ids_reset):
+        hist[ids_reset] = proprio[ids_reset, None, :]
