@@ -195,3 +195,14 @@ def test_killed_sim_robot_trips_the_watchdog(sim_robot):
     assert len(lines) == 1 and "lost the link to the robot" in lines[0] and "damping" in lines[0]
     rep = json.loads(out)
     assert rep["ended"] == "lost link" and not rep["survived"]
+
+
+def test_depth_crop_resize_keeps_the_contracts_view():
+    from tron1cli.deploy.depth_source import crop_resize
+
+    img = np.tile(np.arange(848, dtype=np.float32), (480, 1))  # depth = column index
+    out = crop_resize(img, (87.0, 58.0), (87.0, 58.0), 60, 80)
+    assert out.shape == (60, 80) and out.dtype == np.float32
+    assert out[0, 0] < 10 and out[0, -1] > 838  # the full view, left to right
+    narrow = crop_resize(img, (87.0, 58.0), (43.5, 29.0), 60, 80)
+    assert narrow[0, 0] > 200 and narrow[0, -1] < 648  # a centre crop

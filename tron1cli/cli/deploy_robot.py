@@ -29,11 +29,17 @@ def deploy_robot(
     max_tilt: float = typer.Option(
         0.8, "--max-tilt", callback=finite, min=0.05, max=1.5, help="Base tilt (rad) that trips to damping."
     ),
+    watchdog_ms: float = typer.Option(
+        50.0, "--watchdog-ms", callback=finite, min=5.0, max=1000.0, help="Longest state or IMU silence (ms)."
+    ),
+    depth: str = typer.Option(
+        "none", "--depth", help="Depth source of a perceptive policy: none or realsense (pyrealsense2)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
 ) -> None:
     """Run POLICY on a TRON1 through LimX's SDK: 50 Hz, the observation of its contract, joints mapped
     by motor name; a ramp to the default pose first; damping (Kp 0) when state or IMU stop for more
-    than 50 ms, the base tilts past --max-tilt, or on Ctrl-C.
+    than --watchdog-ms, the base tilts past --max-tilt, or on Ctrl-C.
 
     Reports survival, loop latency (state message to published command) and policy time.
     """
@@ -43,6 +49,8 @@ def deploy_robot(
     from tron1cli.policy.runtime import load_policy
 
     try:
+        if depth not in ("none", "realsense"):
+            raise ValueError(f"unknown --depth '{depth}'; choose from none, realsense")
         if cmd is not None and joystick:
             raise ValueError("give --cmd or --joystick, not both")
         schedule = CommandSchedule.constant(parse_cmd(cmd if cmd is not None else "0,0,0"))
@@ -52,11 +60,24 @@ def deploy_robot(
         fail(f"deploy-robot runs exported policies (.onnx); export {policy} with tron1 export-onnx", 2)
     pol = load_policy(policy)
     cfg = RobotConfig(
-        ip=ip, schedule=schedule, joystick=joystick, duration_s=duration, ramp_s=ramp, max_tilt_rad=max_tilt
+        ip=ip,
+        schedule=schedule,
+        joystick=joystick,
+        duration_s=duration,
+        ramp_s=ramp,
+        max_tilt_rad=max_tilt,
+        watchdog_s=watchdog_ms / 1e3,
     )
+    source = None
+    if depth == "realsense" and pol.contract.get("depth"):
+        from tron1cli.deploy.depth_source import RealSenseDepth
+
+        source = RealSenseDepth(pol.contract["depth"])
     link = Link(ip)
     link.subscribe_robot(joystick=joystick)
-    ctrl = RobotController(pol, cfg, link)
+    ctrl = RobotController(pol, cfg, link, source)
+    if source is not None:
+        source.start()
     note(f"connected to the SDK on {ip}; waiting for the robot's state and IMU")
     rep = ctrl.run(lambda line: note(line))
     if as_json:

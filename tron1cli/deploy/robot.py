@@ -154,7 +154,7 @@ class RobotController:
         layout = layout_of(policy.run_cfg)
         check_matches_env(c, layout, where)
         if policy.depth_hw is not None and depth is None:
-            raise Tron1Error(f"{where} is a perceptive policy: it needs a depth source (--depth)")
+            raise Tron1Error(f"{where} is a perceptive policy: it needs a depth source (--depth realsense)")
         self.policy, self.cfg, self.link, self.depth = policy, cfg, link, depth
         self.default = np.asarray(c["default_pose_rad"], dtype=float)
         self.scale = float(c["action_scale_rad"])
@@ -175,10 +175,20 @@ class RobotController:
 
     # -- messages ---------------------------------------------------------------------------
     def _check_link(self) -> None:
-        now = time.perf_counter()
+        """Trip when state or IMU have been silent past the watchdog. A silence is checked again
+        after a 5 ms wait first: when this process itself was descheduled, messages already in
+        the socket are handed on then, and the link is judged, not this process's scheduling."""
         for kind in ("state", "imu"):
             m = self.link.get(kind)
-            if m is not None and now - m.t > self.cfg.watchdog_s:
+            if m is None or time.perf_counter() - m.t <= self.cfg.watchdog_s:
+                continue
+            deadline = time.perf_counter() + 0.005
+            while time.perf_counter() - self.link.get(kind).t > self.cfg.watchdog_s:
+                if time.perf_counter() >= deadline:
+                    break
+                self.link.wait(0.001)
+            m, now = self.link.get(kind), time.perf_counter()
+            if now - m.t > self.cfg.watchdog_s:
                 raise Trip(
                     "lost link",
                     f"lost the link to the robot: no {kind} message for {1e3 * (now - m.t):.0f} ms "
