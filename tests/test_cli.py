@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 
 
 def tron1(*args: str) -> subprocess.CompletedProcess:
@@ -74,13 +75,13 @@ def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
     assert res["train_steps_per_s"] < min(res["collect_steps_per_s"], res["learn_steps_per_s"])
 
 
-@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a GPU")
 def test_device_cuda_without_a_gpu_is_one_line():
     r = tron1("train", "--device", "cuda", "--iterations", "1")
     assert r.returncode == 2 and "torch sees no CUDA GPU" in r.stderr and "Traceback" not in r.stderr
 
 
-@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_train_on_cuda(tmp_path):
     r = tron1("train", "--device", "cuda", "--envs", "16", "--iterations", "1", "--run-dir", str(tmp_path))
     assert r.returncode == 0, r.stderr

@@ -94,16 +94,13 @@ def bench(
 def _bench_train(
     envs: int, threads: int, seed: int, terrain: str, rounds: int, device: str, precision: str, as_json: bool
 ):
-    import torch
-
     from tron1cli.benchmark import run_train_bench
     from tron1cli.config.presets import for_terrain
     from tron1cli.learn import tune_glibc_malloc
     from tron1cli.train.runner import run_config
 
     tune_glibc_malloc()
-    torch.set_num_threads(threads)
-    try:
+    try:  # the trainer sets torch's threads from the run's nthread
         preset = replace(for_terrain(terrain), num_envs=envs)
         cfg = run_config(preset, seed=seed, nthread=threads, precision=precision)
     except ValueError as e:

@@ -229,9 +229,7 @@ class Tron1Env:
         if len(ids):
             commanded = np.linalg.norm(self.commands.value[ids, :2], axis=1) * episode["length_s"]
             changed = self.curriculum.update(ids, np.linalg.norm(xy[ids], axis=1), commanded)
-            if self.model.nhfield:  # a plane (flat terrain) has no tile to swap
-                for i in changed:
-                    set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
+            self._apply_tiles(changed)
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
@@ -255,9 +253,14 @@ class Tron1Env:
     def pin_terrain_level(self, level: int) -> None:
         """Evaluation: every env on terrain ``level`` (-1 = hardest), no curriculum; call before reset."""
         self.curriculum.pin(level)
+        self._apply_tiles(np.arange(self.n))
+
+    def _apply_tiles(self, ids: np.ndarray) -> None:
+        """Give the worlds of envs ``ids`` the height field of their curriculum tile (a plane, flat
+        terrain, has no tile to swap)."""
         if self.model.nhfield:
-            for i, m in enumerate(self.physics.models):
-                set_tile(m, self.bank, int(self.curriculum.tile[i]))
+            for i in ids:
+                set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
 
     def curriculum_state(self) -> dict[str, np.ndarray]:
         """Each env's terrain level and tile (N,) each: what a resumed run needs to go on climbing."""
@@ -276,9 +279,7 @@ class Tron1Env:
             raise ValueError("curriculum state puts envs on another terrain type or level than it names")
         self.curriculum.level[:] = level
         self.curriculum.tile[:] = tile
-        if self.model.nhfield:
-            for i, m in enumerate(self.physics.models):
-                set_tile(m, self.bank, int(tile[i]))
+        self._apply_tiles(np.arange(self.n))
 
     def ground_height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
