@@ -71,3 +71,32 @@ def test_gait_terms_join_the_locomotion_group():
     single = make_reward_config("single-critic", gait_prior=True)
     assert single.groups == ("all",)
     assert "gait_swing_force" not in make_reward_config().terms
+
+
+def test_swing_height_target_and_shortfall_by_hand():
+    from tron1cli.env.gait import clearance_shortfall, swing_height_target
+
+    # stance 0.5: phase 0.3 stands, 0.75 is mid-swing, 0.625 a quarter into it
+    target = swing_height_target(np.array([[0.3, 0.75], [0.625, 0.5]]), stance=0.5, height=0.1)
+    np.testing.assert_allclose(target, [[0.0, 0.1], [0.1 * np.sin(np.pi / 4), 0.0]], atol=1e-12)
+    # mid-swing foot 4 cm up: 0.6 short; a standing foot is never short; above the target: 0
+    clear = np.array([[0.0, 0.04], [0.2, 0.0]])
+    np.testing.assert_allclose(clearance_shortfall(clear, target, 0.1), [0.6, 0.0])
+
+
+def test_swing_clearance_is_measured_above_the_terrain_under_the_foot():
+    """On a stair tile, a foot held at the same world height is higher above the lower step."""
+    from tron1cli.env.rewards import TERMS, with_weights
+
+    reward = with_weights(make_reward_config(gait_prior=True), {"gait_swing_clearance": -1.0})
+    env = Tron1Env(EnvConfig(num_envs=2, terrain="stairs", max_init_level=9, curriculum=False), reward)
+    try:
+        env.reset()
+        env.commands.gait_phase[:] = 0.25  # right leg (phase + 0.5) at mid-swing, left standing
+        ground = env.ground_height(env.state.foot_pos[:, 1, :2])
+        env.state.foot_pos[:, 1, 2] = ground + 0.032 + 0.03  # right sole 3 cm above its ground
+        np.testing.assert_allclose(TERMS["gait_swing_clearance"](env), 0.7, atol=1e-9)
+        env.state.foot_pos[:, 1, 2] = ground + 0.032 + 0.15
+        np.testing.assert_allclose(TERMS["gait_swing_clearance"](env), 0.0, atol=1e-12)
+    finally:
+        env.close()

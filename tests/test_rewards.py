@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tron1cli.env import robot
-from tron1cli.env.rewards import ABLATIONS, TERMS, RewardConfig, RewardManager, make_reward_config
+from tron1cli.env.rewards import ABLATIONS, TERMS, RewardConfig, RewardManager, TermCfg, make_reward_config
 
 DT = 0.02
 
@@ -137,3 +137,23 @@ def test_joint_limit_counts_velocity_too():
     env.state.joint_vel[:] = robot.VELOCITY_LIMIT + 1
     env.state.joint_pos[0, 0] = robot.JOINT_RANGES[0, 1] + 0.1
     assert TERMS["joint_limit"](env)[0] == 7
+
+
+def test_with_weights_replaces_only_the_named_terms():
+    from tron1cli.env.rewards import with_weights
+
+    base = make_reward_config(gait_prior=True)
+    cfg = with_weights(base, {"alive": 0.5, "torque": -2e-4})
+    assert cfg.terms["alive"].weight == 0.5 and cfg.terms["torque"].weight == -2e-4
+    assert cfg.terms["alive"].group == base.terms["alive"].group
+    assert {k: v for k, v in cfg.terms.items() if k not in ("alive", "torque")} == {
+        k: v for k, v in base.terms.items() if k not in ("alive", "torque")
+    }
+    with pytest.raises(ValueError, match="unknown reward term 'lava'"):
+        with_weights(base, {"lava": 1.0})
+    added = with_weights(make_reward_config(gait_prior=False), {"gait_swing_clearance": -1.0})
+    assert added.terms["gait_swing_clearance"] == TermCfg(-1.0, "loco")
+    single = with_weights(make_reward_config("single-critic"), {"alive": 1.0})
+    assert single.terms["alive"].group == "all" and single.groups == ("all",)
+    with pytest.raises(ValueError, match="not a finite number"):
+        with_weights(base, {"stable": float("nan")})

@@ -61,6 +61,9 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--preset", "fast"], 2, "unknown preset 'fast'; choose from flat, perceptive, paper"),
         (["--preset", "paper", "--resume"], 2, "--preset starts a new run"),
         (["--randomize-skip", "restitution"], 2, "needs Table III randomisation on"),
+        (["--reward-weights", "lava=1"], 2, "unknown reward term 'lava'"),
+        (["--reward-weights", "alive=inf"], 2, "alive=inf is not a finite number"),
+        (["--reward-weights", "alive"], 2, "wants TERM=NUMBER pairs"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):
@@ -227,3 +230,17 @@ def test_resumed_run_keeps_its_terrain_levels(tmp_path):
             resumed.env.restore_curriculum({"level": cur.level + 1, "tile": cur.tile})
     finally:
         resumed.close()
+
+
+def test_reward_weights_are_recorded_printed_and_kept_on_resume(tmp_path):
+    run = tmp_path / "r"
+    r = tron1("train", *SMALL, "--iterations", "1", "--reward-weights", "alive=0.5", "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    assert "reward weights alive=0.5" in " ".join(r.stderr.split())
+    c = json.loads((run / "config.json").read_text())
+    assert c["reward"]["terms"]["alive"]["weight"] == 0.5 and "reward_weights" in c["preset_overrides"]
+    r = tron1("train", "--resume", "--iterations", "2", "--reward-weights", "alive=1", "--run-dir", str(run))
+    assert r.returncode == 2 and "started with --reward-weights alive=0.5" in " ".join(r.stderr.split())
+    r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == 2

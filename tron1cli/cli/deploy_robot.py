@@ -9,6 +9,7 @@ import typer
 from rich.table import Table
 
 from tron1cli.cli.common import err, fail, finite, note, out, print_json, terrain_help
+from tron1cli.errors import UsageError
 
 EXIT = {"duration": 0, "interrupted": 130}  # every other end (a safety trip) exits 1
 
@@ -33,7 +34,10 @@ def deploy_robot(
         50.0, "--watchdog-ms", callback=finite, min=5.0, max=1000.0, help="Longest state or IMU silence (ms)."
     ),
     depth: str = typer.Option(
-        "none", "--depth", help="Depth source of a perceptive policy: none or realsense (pyrealsense2)."
+        "none",
+        "--depth",
+        help="Depth source of a perceptive policy: none, realsense (pyrealsense2) or udp[:PORT] "
+        "(frames from sim-robot --depth-to, port 47017 by default).",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
 ) -> None:
@@ -43,19 +47,21 @@ def deploy_robot(
 
     Reports survival, loop latency (state message to published command) and policy time.
     """
+    from tron1cli.deploy.depth_link import DEFAULT_PORT, parse_address
     from tron1cli.deploy.robot import RobotConfig, RobotController
     from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
     from tron1cli.deploy.sdk import Link
     from tron1cli.policy.runtime import load_policy
 
     try:
-        if depth not in ("none", "realsense"):
-            raise ValueError(f"unknown --depth '{depth}'; choose from none, realsense")
+        if depth not in ("none", "realsense", "udp") and not depth.startswith("udp:"):
+            raise ValueError(f"unknown --depth '{depth}'; choose from none, realsense, udp[:PORT]")
+        port = parse_address(depth.removeprefix("udp"), "")[1] if depth.startswith("udp:") else DEFAULT_PORT
         if cmd is not None and joystick:
             raise ValueError("give --cmd or --joystick, not both")
         schedule = CommandSchedule.constant(parse_cmd(cmd if cmd is not None else "0,0,0"))
-    except ValueError as e:
-        fail(str(e), 2)
+    except (ValueError, UsageError) as e:
+        fail(f"--depth: {e}" if isinstance(e, UsageError) else str(e), 2)
     if policy.suffix != ".onnx":
         fail(f"deploy-robot runs exported policies (.onnx); export {policy} with tron1 export-onnx", 2)
     pol = load_policy(policy)
@@ -69,10 +75,19 @@ def deploy_robot(
         watchdog_s=watchdog_ms / 1e3,
     )
     source = None
-    if depth == "realsense" and pol.contract.get("depth"):
+    if depth != "none" and pol.depth_hw is None:
+        note(f"{policy} is blind: --depth {depth} is not used")
+    elif depth == "realsense":
         from tron1cli.deploy.depth_source import RealSenseDepth
 
         source = RealSenseDepth(pol.contract["depth"])
+    elif depth != "none":
+        from tron1cli.deploy.depth_link import UdpDepth
+
+        try:
+            source = UdpDepth(port, *pol.depth_hw)
+        except UsageError as e:
+            fail(f"--depth: {e}", 2)
     link = Link(ip)
     link.subscribe_robot(joystick=joystick)
     ctrl = RobotController(pol, cfg, link, source)
@@ -110,6 +125,9 @@ def _table(rep: dict) -> Table:
         ("policy inference p50 / p99 (ms)", f"{_f(rep['policy_ms_p50'])} / {_f(rep['policy_ms_p99'])}"),
         ("state / IMU messages", f"{rep['state_messages']} / {rep['imu_messages']}"),
     ]
+    if rep.get("depth_age_ms_p50") is not None:
+        ages = f"{_f(rep['depth_age_ms_p50'])} / {_f(rep['depth_age_ms_p99'])}"
+        rows.append(("depth frame age p50 / p99 (ms)", ages))
     for name, value in rows:
         t.add_row(name, value)
     return t
@@ -137,16 +155,28 @@ def sim_robot(
     report: Path | None = typer.Option(
         None, "--report", metavar="FILE.json", help="Write the run's figures and base velocity log here."
     ),
+    depth_to: str | None = typer.Option(
+        None,
+        "--depth-to",
+        metavar="HOST:PORT",
+        help="Render the depth camera at 30 Hz and send its frames here over UDP, for "
+        "deploy-robot --depth udp[:PORT] (the SDK carries no images) [default: no camera].",
+    ),
 ) -> None:
     """Our MuJoCo TRON1 as a simulated robot on the SDK's simulator side, for deploy-robot: PD on the
     received Kp, Kd, q, dq, tau at the physics rate, state and IMU published at it; the base hangs
     on a hoist until --hoist seconds after the first command.
     """
     from tron1cli.cli.common import check_outputs
+    from tron1cli.deploy.depth_link import parse_address
     from tron1cli.deploy.sdk import Link
     from tron1cli.deploy.sim_robot import SimRobot, SimRobotConfig, write_report
 
     check_outputs(files=[("--report", report)])
+    try:
+        target = None if depth_to is None else parse_address(depth_to)
+    except UsageError as e:
+        fail(f"--depth-to: {e}", 2)
     cfg = SimRobotConfig(
         terrain=terrain,
         level=level,
@@ -155,10 +185,9 @@ def sim_robot(
         noise=noise,
         duration_s=duration,
         seed=seed,
+        depth_to=target,
     )
     with err.status("building the world..."):
-        from tron1cli.errors import UsageError
-
         try:
             sim = SimRobot(cfg, None)  # options checked before the SDK starts
         except UsageError as e:
@@ -167,7 +196,9 @@ def sim_robot(
     sim.link.subscribe_commands()
     note(
         f"sim-robot: TRON1 on {sim.terrain_type} level {level}, physics {physics_hz:g} Hz, hoisted; "
-        f"SDK simulator side on {ip}; Ctrl-C stops"
+        f"SDK simulator side on {ip}"
+        + (f"; depth frames to {target[0]}:{target[1]}" if target else "")
+        + "; Ctrl-C stops"
     )
     rep = sim.run()
     if report is not None:

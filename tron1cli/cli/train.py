@@ -38,6 +38,7 @@ PRESET_OPTIONS = (
     "steps_per_env",
     "hidden",
     "critic_weights",
+    "reward_weights",
     "perception",
     "randomize",
     "randomize_skip",
@@ -132,6 +133,12 @@ def train(
         help="Weights of the per-group normalised advantages, e.g. stable=0.5,loco=1 "
         "[default: stable=0.5, loco=1 (the paper leaves them open; measured to track sooner)].",
     ),
+    reward_weights: str = typer.Option(
+        "",
+        "--reward-weights",
+        help="Per-second weights of reward terms replacing the defaults, e.g. alive=0.5 "
+        "(terms: README, Reward; a run's own in its config.json).",
+    ),
     rerun: str = typer.Option(
         "off",
         "--rerun",
@@ -151,7 +158,7 @@ def train(
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS, make_reward_config
+    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_weights
     from tron1cli.learn import tune_glibc_malloc
     from tron1cli.train.runner import Trainer, check_run_dir, run_config
 
@@ -199,14 +206,8 @@ def train(
     gait_prior = gait_prior if "gait_prior" in given else base.gait_prior
     groups = make_reward_config(ablation, gait_prior=gait_prior).groups
     if "critic_weights" in given:
-        try:
-            weights = {
-                k.strip(): float(v)
-                for k, v in (kv.split("=") for kv in critic_weights.split(",") if kv.strip())
-            }
-        except ValueError:
-            fail(f"--critic-weights wants GROUP=NUMBER pairs separated by commas, got '{critic_weights}'", 2)
-        bad = [k for k, w in weights.items() if not (math.isfinite(w) and w >= 0)]
+        weights = _parse_weights(critic_weights, "--critic-weights", "GROUP")
+        bad = [k for k, w in weights.items() if w < 0]
         if bad:
             fail(f"--critic-weights: {bad[0]}={weights[bad[0]]} is not a finite number >= 0", 2)
         unknown = sorted(set(weights) - set(groups))
@@ -215,6 +216,13 @@ def train(
             fail(f"--critic-weights: unknown reward group '{unknown[0]}'; this run's groups: {known}", 2)
     else:  # the preset's weights of the groups this run has (an ablation may merge them)
         weights = {g: w for g, w in base.critic_weights.items() if g in groups}
+    term_weights = dict(base.reward_weights)
+    if "reward_weights" in given:
+        term_weights |= _parse_weights(reward_weights, "--reward-weights", "TERM")
+        try:
+            with_weights(make_reward_config(ablation, gait_prior=gait_prior), term_weights)
+        except ValueError as e:
+            fail(f"--reward-weights: {e}", 2)
     randomization = base.randomization
     if "randomize" in given:
         randomization = RandomizationConfig.table_iii() if randomize else RandomizationConfig()
@@ -245,6 +253,7 @@ def train(
             teacher_ratio=teacher_ratio if "teacher_ratio" in given else base.teacher_ratio,
             gait_prior=gait_prior,
             critic_weights=MappingProxyType(weights),
+            reward_weights=MappingProxyType(term_weights),
             perception=perception if "perception" in given else base.perception,
             randomization=randomization,
             pushes=push_cfg,
@@ -312,6 +321,7 @@ def _saved_values(cfg) -> dict:
         "steps_per_env": lr.num_steps_per_env,
         "hidden": tuple(lr.actor_hidden),
         "critic_weights": {k: float(v) for k, v in lr.critic_weights.items() if float(v) != 1.0},
+        "reward_weights": {k: t.weight for k, t in cfg.reward.terms.items()},
         "perception": e.perception,
         "randomize": bool(terms),
         "randomize_skip": frozenset(t for t in ALL_TERMS if t not in terms) if terms else frozenset(),
@@ -330,6 +340,8 @@ def _as_saved(name: str, value):
         if name == "critic_weights":
             pairs = (kv.split("=") for kv in value.split(",") if kv.strip())
             return {k.strip(): float(v) for k, v in pairs if float(v) != 1.0}
+        if name == "reward_weights":
+            return {k.strip(): float(v) for k, v in (kv.split("=") for kv in value.split(",") if kv.strip())}
         if name == "randomize_skip":
             return frozenset(_csv(value))
     except ValueError:
@@ -368,6 +380,9 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
         now = _as_saved(name, ctx.params[name])
         if name == "teacher_ratio" and not isinstance(now, str):
             same = abs(float(now) - float(was)) < 1e-12
+        elif name == "reward_weights" and isinstance(now, dict):  # only the terms given
+            same = all(was.get(k) == v for k, v in now.items())
+            was = {k: was.get(k, float("nan")) for k in now}
         else:
             same = now == was
         if not same:
@@ -377,6 +392,20 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
                 "it as saved; leave the option out, or start a new run in another --run-dir",
                 2,
             )
+
+
+def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:
+    """``A=1,B=0.5`` -> {A: 1.0, B: 0.5}; exits 2 naming ``option`` on anything else."""
+    try:
+        weights = {k.strip(): float(v) for k, v in (kv.split("=") for kv in text.split(",") if kv.strip())}
+    except ValueError:
+        fail(f"{option} wants {key}=NUMBER pairs separated by commas, got '{text}'", 2)
+    bad = [k for k, w in weights.items() if not math.isfinite(w)]
+    if not weights:
+        fail(f"{option} is empty", 2)
+    if bad:
+        fail(f"{option}: {bad[0]}={weights[bad[0]]} is not a finite number", 2)
+    return weights
 
 
 def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) -> None:
@@ -395,6 +424,7 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         f"{c.learner.num_steps_per_env} steps x {c.iterations:,} iterations, {_preset_summary(c)}, "
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"critic weights {_weights_summary(c.learner.critic_weights)}, "
+        f"reward weights {_reward_summary(c)}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
         f"seed {c.env.seed}, {c.env.nthread} threads, learner on {trainer.learner.device.type} in "
@@ -466,6 +496,15 @@ def _preset_summary(c) -> str:
     """'preset paper' or 'preset paper (overridden: envs, iterations)'."""
     over = f" (overridden: {', '.join(c.preset_overrides)})" if c.preset_overrides else ""
     return f"preset {c.preset}{over}"
+
+
+def _reward_summary(c) -> str:
+    """'default' or the terms whose weights differ from this version's defaults, e.g. 'alive=0.5'."""
+    from tron1cli.env.rewards import make_reward_config
+
+    default = make_reward_config(c.ablation, gait_prior=c.gait_prior).terms
+    changed = {k: t.weight for k, t in c.reward.terms.items() if k not in default or default[k] != t}
+    return ", ".join(f"{k}={w:g}" for k, w in changed.items()) or "default"
 
 
 def _weights_summary(weights: dict[str, float]) -> str:

@@ -27,6 +27,7 @@ class TrainPreset:
     steps_per_env: rollout length per iteration (policy steps); hidden: actor and critic MLP sizes;
     teacher_ratio: teacher share of the envs; gait_prior: clock + contact schedule (ours);
     critic_weights: reward group -> weight of its normalised advantage (missing: 1);
+    reward_weights: reward term -> per-second weight replacing the default one (missing: default);
     perception: heightmap and depth; randomization: Table III terms; pushes: random pushes.
     """
 
@@ -41,6 +42,7 @@ class TrainPreset:
     critic_weights: Mapping[str, float] = field(
         default_factory=lambda: MappingProxyType({"stable": DEFAULT_STABLE_WEIGHT})
     )
+    reward_weights: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     perception: bool = False
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     pushes: PushConfig = field(default_factory=PushConfig)

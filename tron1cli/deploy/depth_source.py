@@ -2,16 +2,19 @@
 
 :class:`DepthSource` is the interface :class:`tron1cli.deploy.robot.RobotController` reads:
 ``newest()`` gives the newest (rows, cols) float32 z-depth image in metres (0 = no return), or None
-before the first frame. :class:`RealSenseDepth` fills it on the robot from a RealSense D435i through
-``pyrealsense2``, in its own thread at the contract's depth rate (30 Hz). It is thin on purpose
-and untested here (no camera on this machine): start the camera, take each depth frame, crop it
-to the contract's field of view, reduce it to the contract's size, convert to metres and blank
-what lies outside the contract's range.
+before the first frame; ``age_s()`` the seconds since it arrived (inf before the first).
+:class:`RealSenseDepth` fills it on the robot from a RealSense D435i through ``pyrealsense2``,
+in its own thread at the contract's depth rate (30 Hz): it starts the camera, takes each depth
+frame, crops it to the contract's field of view, reduces it to the contract's size, converts it to
+metres and blanks what lies outside the contract's range. It is thin on purpose and untested here
+(no camera on this machine). :class:`tron1cli.deploy.depth_link.UdpDepth` takes frames from
+another process (sim-robot's renderer, or any camera process).
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from typing import Protocol
 
 import numpy as np
@@ -23,6 +26,8 @@ class DepthSource(Protocol):
     def start(self) -> None: ...
 
     def newest(self) -> np.ndarray | None: ...
+
+    def age_s(self) -> float: ...
 
     def close(self) -> None: ...
 
@@ -57,6 +62,7 @@ class RealSenseDepth:
         self.fov_want = tuple(float(x) for x in depth_contract["fov_deg"])
         self.size, self.fps = (width, height), fps
         self._frame: np.ndarray | None = None
+        self._t_arrival = -np.inf
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="tron1-realsense", daemon=True)
@@ -86,11 +92,15 @@ class RealSenseDepth:
             img = crop_resize(img, self.fov_have, self.fov_want, self.rows, self.cols)
             img[(img < self.near) | (img > self.far)] = 0.0
             with self._lock:
-                self._frame = img
+                self._frame, self._t_arrival = img, time.monotonic()
 
     def newest(self) -> np.ndarray | None:
         with self._lock:
             return self._frame
+
+    def age_s(self) -> float:
+        with self._lock:
+            return time.monotonic() - self._t_arrival
 
     def close(self) -> None:
         self._stop.set()

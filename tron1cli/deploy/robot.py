@@ -17,8 +17,12 @@ first state message after its tick:
 3. policy: target = default pose + action scale x action, clipped to the joint ranges;
 4. stop: the damping command (Kp 0, Kd > 0, zero torque) for ``damping_s``.
 
+A perceptive policy holds the default pose after the ramp until its depth source has delivered
+a frame (at most ``connect_timeout_s``), and each policy step takes the newest frame.
+
 Safety trips (each one line on stderr, then damping): no state or IMU message for more than
-``watchdog_s`` (lost link), base tilt past ``max_tilt_rad``, a non-finite state or action, Ctrl-C.
+``watchdog_s`` (lost link), no depth frame for more than ``depth_timeout_s`` (lost depth), base
+tilt past ``max_tilt_rad``, a non-finite state or action, Ctrl-C.
 """
 
 from __future__ import annotations
@@ -113,7 +117,8 @@ class RobotConfig:
     ip: the robot's address (127.0.0.1 for sim-robot); schedule: velocity commands over policy
     time; joystick: commands from the SDK's joystick instead; duration_s: policy seconds (None:
     until Ctrl-C); ramp_s: the stand-up ramp; watchdog_s: longest silence of state or IMU;
-    max_tilt_rad: base tilt limit; damping_kd: Kd of the damping command (N m s/rad); damping_s:
+    max_tilt_rad: base tilt limit; depth_timeout_s: oldest depth frame a perceptive policy may
+    act on (30 Hz frames: 7 in a row lost); damping_kd: Kd of the damping command (N m s/rad); damping_s:
     how long it is sent at the end; connect_timeout_s: wait for the first messages.
     """
 
@@ -124,13 +129,14 @@ class RobotConfig:
     ramp_s: float = 2.0
     watchdog_s: float = 0.05
     max_tilt_rad: float = 0.8
+    depth_timeout_s: float = 0.25
     damping_kd: float = 2.5
     damping_s: float = 0.3
     connect_timeout_s: float = 10.0
 
 
 class Trip(Exception):
-    """A safety trip: ``kind`` (lost link, tilt, non-finite, interrupted) and one line of text."""
+    """A safety trip: ``kind`` (lost link, lost depth, tilt, non-finite, interrupted) and one line of text."""
 
     def __init__(self, kind: str, message: str) -> None:
         super().__init__(message)
@@ -154,8 +160,12 @@ class RobotController:
         layout = layout_of(policy.run_cfg)
         check_matches_env(c, layout, where)
         if policy.depth_hw is not None and depth is None:
-            raise Tron1Error(f"{where} is a perceptive policy: it needs a depth source (--depth realsense)")
+            raise Tron1Error(
+                f"{where} is a perceptive policy: it needs a depth source (--depth realsense or udp:PORT)"
+            )
         self.policy, self.cfg, self.link, self.depth = policy, cfg, link, depth
+        hw = policy.depth_hw
+        self.blank_depth = np.zeros((1, *(hw or (1, 1))), dtype=np.float32)  # the input's shape
         self.default = np.asarray(c["default_pose_rad"], dtype=float)
         self.scale = float(c["action_scale_rad"])
         self.kp, self.kd = float(c["kp_nm_per_rad"]), float(c["kd_nm_s_per_rad"])
@@ -171,6 +181,7 @@ class RobotController:
         self.policy_ms: list[float] = []
         self.late_ms: list[float] = []
         self.tilt_max = 0.0
+        self.depth_age_ms: list[float] = []
         self.warnings: list[str] = []
 
     # -- messages ---------------------------------------------------------------------------
@@ -256,8 +267,7 @@ class RobotController:
         cfg, pol, dt = self.cfg, self.policy, self.dt
         self.connect()
         hidden = pol.initial_hidden(1)
-        d_in = np.zeros((1, 1, 1), dtype=np.float32)
-        pol.step(self.observer.hist.reshape(1, -1), self._depth_in(d_in), hidden)  # warm-up, not timed
+        pol.step(self.observer.hist.reshape(1, -1), self.blank_depth, hidden)  # warm-up, not timed
         ended, trip_line, steps = "duration", None, 0
         t_start = t_end = None
         count = self.link.get("state").count
@@ -274,6 +284,16 @@ class RobotController:
                 count = st.count
                 a = k / n_ramp
                 self._send(q0 + (self.default - q0) * (a * a * (3.0 - 2.0 * a)), self.kp, self.kd)
+            if self.depth is not None and self.depth.newest() is None:
+                say("holding the default pose until the first depth frame")
+                t_wait = time.perf_counter()
+                while self.depth.newest() is None:
+                    if time.perf_counter() - t_wait > cfg.connect_timeout_s:
+                        raise Trip("lost depth", f"no depth frame within {cfg.connect_timeout_s:g} s")
+                    tick = self._sleep_until(tick + dt)
+                    st, q_now, _, _, _ = self._fresh_state(count)
+                    count = st.count
+                    self._send(self.default, self.kp, self.kd)
             # policy
             say("policy in control" + (f" for {cfg.duration_s:g} s" if cfg.duration_s else " (Ctrl-C stops)"))
             t_start = time.monotonic()
@@ -284,7 +304,7 @@ class RobotController:
                 count = st.count
                 hist = self.observer.observe(q_now, dq, quat, gyro, self._command(steps * dt))
                 t0 = time.perf_counter()
-                action, hidden, _, _ = pol.step(hist, self._depth_in(d_in), hidden)
+                action, hidden, _, _ = pol.step(hist, self._depth_in(), hidden)
                 self.policy_ms.append(1e3 * (time.perf_counter() - t0))
                 if not np.all(np.isfinite(action)):
                     raise Trip("non-finite", "the policy returned a non-finite action")
@@ -303,11 +323,17 @@ class RobotController:
         self._damp(q_now, lost=ended == "lost link")
         return self._report(ended, trip_line, steps, t_start, t_end)
 
-    def _depth_in(self, placeholder: np.ndarray) -> np.ndarray:
+    def _depth_in(self) -> np.ndarray:
+        """The policy's depth input: the newest frame (1, rows, cols); trips when it is too old."""
         if self.depth is None:
-            return placeholder
+            return self.blank_depth
+        age = self.depth.age_s()
+        if age > self.cfg.depth_timeout_s:
+            limit = 1e3 * self.cfg.depth_timeout_s
+            raise Trip("lost depth", f"no depth frame for {1e3 * age:.0f} ms (limit {limit:.0f} ms)")
+        self.depth_age_ms.append(1e3 * age)
         frame = self.depth.newest()
-        return placeholder if frame is None else frame[None].astype(np.float32)
+        return frame[None].astype(np.float32)
 
     def _sleep_until(self, t: float) -> float:
         """Sleep to ``t`` (perf_counter s) checking the watchdog; returns the next tick's base
@@ -358,6 +384,8 @@ class RobotController:
             "policy_ms_p50": _pct(self.policy_ms, 50),
             "policy_ms_p99": _pct(self.policy_ms, 99),
             "tick_late_ms_p99": _pct(self.late_ms, 99),
+            "depth_age_ms_p50": _pct(self.depth_age_ms, 50),
+            "depth_age_ms_p99": _pct(self.depth_age_ms, 99),
             "state_messages": 0 if st is None else st.count,
             "imu_messages": 0 if imu is None else imu.count,
             "policy_start_monotonic_s": t_start,

@@ -14,12 +14,17 @@ height (0.83 m above the ground); the hoist lets go ``hoist_s`` after the first 
 deploy-robot's ramp), so the policy starts as in training, from the default pose just above the
 ground. When the loop falls behind the wall clock by more than ``MAX_LAG_S`` it slips (counted)
 instead of bursting to catch up.
+
+With ``depth_to`` set, the robot's D435i is rendered at 30 Hz of simulation time by the training
+renderer (the same ray march and, with ``noise``, the same sensor noise) in its own thread and
+sent as UDP datagrams (:mod:`tron1cli.deploy.depth_link`), since the SDK has no image channel.
 """
 
 from __future__ import annotations
 
 import json
 import signal
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +34,7 @@ import numpy as np
 
 from tron1cli.config.env import EnvConfig, NoiseConfig
 from tron1cli.deploy.sdk import PF_TRON1A_MOTORS
-from tron1cli.env import robot
+from tron1cli.env import robot, sensors
 from tron1cli.env.math3d import quat_rotate_inverse, quat_to_mat
 from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.terrain import TerrainBank, ground_height, resolve_terrain
@@ -46,7 +51,8 @@ class SimRobotConfig:
     """terrain, level: as in deploy-sim (the tile at the origin); physics_hz: physics and PD rate;
     hoist_s: seconds after the first command at which the hoist lets go (None: never); noise:
     training's sensor noise on the published state and IMU; duration_s: wall seconds to run
-    (None: until stopped); seed: terrain and noise seed."""
+    (None: until stopped); seed: terrain and noise seed; depth_to: (host, port) to send the
+    depth camera's frames to (None: no camera); depth_hz: their rate in simulation time."""
 
     terrain: str = "flat"
     level: int = 0
@@ -55,6 +61,8 @@ class SimRobotConfig:
     noise: bool = True
     duration_s: float | None = None
     seed: int = 0
+    depth_to: tuple[str, int] | None = None
+    depth_hz: float = 30.0
 
 
 class SimRobot:
@@ -71,14 +79,14 @@ class SimRobot:
         self.cfg, self.link = cfg, link
         bank = TerrainBank.from_name(cfg.terrain, tcfg, seed=cfg.seed)
         self.model = build_model(1.0 / cfg.physics_hz, bank)
-        self.terrain_type, ground = "flat", 0.0
-        if bank is not None and self.model.nhfield:
-            kind = int(np.random.default_rng([cfg.seed, 7]).integers(len(types)))
-            tile = int(np.flatnonzero((bank.kind == kind) & (bank.level == cfg.level % tcfg.num_levels))[0])
+        kind = int(np.random.default_rng([cfg.seed, 7]).integers(len(types)))
+        tile = int(np.flatnonzero((bank.kind == kind) & (bank.level == cfg.level % tcfg.num_levels))[0])
+        self.terrain_type, ground = types[kind], 0.0
+        if self.model.nhfield:
             set_tile(self.model, bank, tile)
-            self.terrain_type = types[kind]
             ground = float(ground_height(bank.heights, np.array([tile]), np.zeros((1, 2)), bank.res)[0])
         self.ground = ground
+        self.bank, self.tile = bank, tile
         m = self.model
         m.actuator_gainprm[:, 0] = 1.0  # ctrl = Kp q_des + Kd dq_des + tau; bias -Kp q - Kd dq
         m.actuator_biasprm[:, 1:3] = 0.0
@@ -106,6 +114,7 @@ class SimRobot:
         self.slips = 0
         self.commands = 0
         self.released_at: float | None = None
+        self.camera = _Camera(self, cfg) if cfg.depth_to is not None else None
 
     def _apply(self, cmd) -> None:
         f = cmd.fields
@@ -150,6 +159,8 @@ class SimRobot:
         last_count, first_cmd = 0, None
         wall0 = time.perf_counter()
         t_next = wall0
+        if self.camera is not None:
+            self.camera.start()
         while not self.stop:
             now = time.perf_counter()
             if cfg.duration_s is not None and now - wall0 >= cfg.duration_s:
@@ -172,6 +183,8 @@ class SimRobot:
                 d.qpos[:7], d.qvel[:6] = self.hoist_pose, 0.0
             self._publish()
             self.steps += 1
+            if self.camera is not None:
+                self.camera.tick(self.steps * dt)
             if self.steps % log_every == 0:
                 self._log()
             t_next += dt
@@ -182,6 +195,8 @@ class SimRobot:
             elif lag < 0:
                 time.sleep(-lag)
         self.commands = last_count
+        if self.camera is not None:
+            self.camera.close()
         return self.report(time.perf_counter() - wall0)
 
     def _log(self) -> None:
@@ -206,12 +221,88 @@ class SimRobot:
             "wall_s": round(wall_s, 4),
             "realtime_factor": round(sim_s / wall_s, 4) if wall_s > 0 else None,
             "slips": self.slips,
+            "depth_frames_sent": None if self.camera is None else self.camera.sender.sent,
+            "depth_render_ms_p50": None if self.camera is None else self.camera.render_ms_p50(),
             "commands_received": self.commands,
             "released_monotonic_s": self.released_at,
             "fell_monotonic_s": self.fell_at,
             "log_monotonic_s": self.log_t,
             "log_base_vel_b": self.log_v,
         }
+
+
+class _Camera:
+    """The sim-robot's depth camera: :meth:`tick` (physics loop) snapshots the camera pose every
+    1/depth_hz of simulation time; a thread renders the newest snapshot and sends it."""
+
+    def __init__(self, sim: SimRobot, cfg: SimRobotConfig) -> None:
+        from tron1cli.deploy.depth_link import DepthSender
+
+        self.sim, self.cam = sim, sensors.DepthCamera()
+        self.cam_id = sim.model.camera(robot.CAMERA_NAME).id
+        self.period = 1.0 / cfg.depth_hz
+        self.maps = sensors.depth_max_maps(sim.bank.heights[sim.tile : sim.tile + 1])
+        self.heights = sim.bank.heights[sim.tile : sim.tile + 1]
+        self.noise = cfg.noise
+        self.rng = np.random.default_rng([cfg.seed, 30])
+        self.sender = DepthSender(*cfg.depth_to)
+        self.next_t = 0.0
+        self.seq = 0
+        self.render_ms: list[float] = []
+        self._pending: tuple[int, float, np.ndarray, np.ndarray] | None = None
+        self._cond = threading.Condition()
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="tron1-sim-camera", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def tick(self, t: float) -> None:
+        if t < self.next_t:
+            return
+        self.next_t += self.period
+        d = self.sim.data
+        pose = (self.seq, t, d.cam_xpos[self.cam_id].copy(), d.cam_xmat[self.cam_id].reshape(3, 3).copy())
+        self.seq += 1
+        with self._cond:
+            self._pending = pose  # a frame the renderer has not taken yet is dropped, as by a driver
+            self._cond.notify()
+
+    def _run(self) -> None:
+        import numba
+
+        numba.set_num_threads(1)
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending is not None or self._stop)
+                if self._stop:
+                    return
+                seq, t, pos, rot = self._pending
+                self._pending = None
+            t0 = time.perf_counter()
+            img = sensors.render_depth(
+                self.heights,
+                np.zeros(1, np.int64),
+                pos[None],
+                rot[None],
+                self.cam,
+                self.sim.bank.res,
+                max_maps=self.maps,
+            )
+            if self.noise:
+                img = sensors.add_depth_noise(img, self.cam, self.rng)
+            self.render_ms.append(1e3 * (time.perf_counter() - t0))
+            self.sender.send(img[0], seq, t)
+
+    def render_ms_p50(self) -> float | None:
+        return round(float(np.median(self.render_ms)), 3) if self.render_ms else None
+
+    def close(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        self._thread.join(timeout=2.0)
+        self.sender.close()
 
 
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

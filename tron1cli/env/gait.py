@@ -40,3 +40,18 @@ def clock_observation(phase: np.ndarray, freq: np.ndarray) -> np.ndarray:
     """The clock as the policy sees it (N, 3): sin(2 pi phase), cos(2 pi phase), frequency (Hz)."""
     a = 2.0 * np.pi * phase
     return np.stack([np.sin(a), np.cos(a), freq], axis=1)
+
+
+def swing_height_target(leg_phase: np.ndarray, stance: float = 0.5, height: float = 0.1) -> np.ndarray:
+    """Sole height (m) above the terrain a leg at ``leg_phase`` should reach: ``height x
+    sin(pi s)`` at swing progress s in [0, 1] (0 at lift-off and touch-down, ``height`` mid-swing),
+    0 in stance. Same shape as ``leg_phase``."""
+    s = (np.asarray(leg_phase, dtype=np.float64) - stance) / (1.0 - stance)
+    return np.where(s > 0.0, height * np.sin(np.pi * np.clip(s, 0.0, 1.0)), 0.0)
+
+
+def clearance_shortfall(clearance: np.ndarray, target: np.ndarray, height: float = 0.1) -> np.ndarray:
+    """Penalty (N,) of feet below their swing target: sum over feet of max(0, target - clearance)
+    / height, so 1 a second for one foot dragging at mid-swing; ``clearance`` and ``target`` (N, 2) m."""
+    short = np.maximum(np.asarray(target, dtype=np.float64) - clearance, 0.0) / height
+    return short.sum(axis=-1)

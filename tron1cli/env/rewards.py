@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tron1cli.env import gait, robot
 from tron1cli.env import reward_terms as rt
-from tron1cli.env import robot
 
 if TYPE_CHECKING:
     from tron1cli.env.core import Tron1Env
@@ -84,6 +84,7 @@ class RewardConfig:
     l2_alpha: float = 4.0
     gait_force_scale: float = 20.0
     gait_speed_scale: float = 0.5
+    gait_clearance_m: float = 0.1
     ablation: str = "none"
 
     def __post_init__(self) -> None:
@@ -110,6 +111,7 @@ class RewardConfig:
             "l2_alpha": self.l2_alpha,
             "gait_force_scale": self.gait_force_scale,
             "gait_speed_scale": self.gait_speed_scale,
+            "gait_clearance_m": self.gait_clearance_m,
             "ablation": self.ablation,
             "groups": list(self.groups),
         }
@@ -164,6 +166,22 @@ GAIT_TERMS: dict[str, TermCfg] = {
 }
 
 
+def with_weights(cfg: RewardConfig, weights: Mapping[str, float]) -> RewardConfig:
+    """``cfg`` with the per-second weights of some terms replaced (``tron1 train --reward-weights
+    alive=0.5``); a registered term ``cfg`` lacks joins the locomotion group (or the one group of
+    a single critic). ValueError for a name not in :data:`TERMS` or a weight that is not finite."""
+    for name, w in weights.items():
+        if name not in TERMS:
+            raise ValueError(f"unknown reward term '{name}'; the terms: {', '.join(TERMS)}")
+        if not np.isfinite(w):
+            raise ValueError(f"{name}={w} is not a finite number")
+    group = ALL if cfg.groups == (ALL,) else LOCO
+    terms = dict(cfg.terms)
+    for name, w in weights.items():
+        terms[name] = replace(terms.get(name, TermCfg(0.0, group)), weight=float(w))
+    return replace(cfg, terms=MappingProxyType(terms))
+
+
 def make_reward_config(ablation: str = "none", gait_prior: bool = False, **overrides) -> RewardConfig:
     """The paper's reward, plus the gait terms when ``gait_prior``, with an ablation preset applied.
 
@@ -194,6 +212,14 @@ def _swing_force(env: Tron1Env) -> np.ndarray:
     return np.sum((1.0 - env.desired_contact()) * (1.0 - np.exp(-(f**2))), axis=1)
 
 
+def _swing_clearance(env: Tron1Env) -> np.ndarray:
+    g, h = env.cfg.gait, env.reward_cfg.gait_clearance_m
+    target = gait.swing_height_target(gait.leg_phases(env.commands.gait_phase, g.offset), g.stance, h)
+    feet = env.state.foot_pos
+    ground = np.stack([env.ground_height(feet[:, i, :2]) for i in range(feet.shape[1])], axis=1)
+    return gait.clearance_shortfall(feet[:, :, 2] - robot.FOOT_RADIUS - ground, target, h)
+
+
 def _stance_speed(env: Tron1Env) -> np.ndarray:
     v = np.linalg.norm(env.state.foot_vel, axis=-1) / env.reward_cfg.gait_speed_scale
     return np.sum(env.desired_contact() * (1.0 - np.exp(-(v**2))), axis=1)
@@ -219,6 +245,7 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     ),
     "gait_swing_force": _swing_force,
     "gait_stance_speed": _stance_speed,
+    "gait_swing_clearance": _swing_clearance,
     "alive": lambda env: np.ones(env.n),
 }
 

@@ -26,7 +26,7 @@ from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.rewards import RewardConfig, make_reward_config
+from tron1cli.env.rewards import RewardConfig, make_reward_config, with_weights
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
@@ -66,6 +66,9 @@ class RunConfig:
             raise ValueError(f"save_every must be positive, got {self.save_every}")
         if self.gait_prior != self.env.gait.enabled:
             raise ValueError("gait_prior and env.gait.enabled disagree")
+        clocked = [k for k in self.reward.terms if k.startswith("gait_")]
+        if clocked and not self.gait_prior:
+            raise ValueError(f"reward term {clocked[0]} follows the gait clock: it needs --gait-prior")
 
     @property
     def reward(self) -> RewardConfig:
@@ -99,7 +102,9 @@ def run_config(
     them); teachers see the heightmap, students the depth image. overrides: the options given on
     top of the preset, recorded with the run.
     """
-    groups = make_reward_config(preset.ablation, gait_prior=preset.gait_prior).groups
+    reward = make_reward_config(preset.ablation, gait_prior=preset.gait_prior)
+    reward = with_weights(reward, preset.reward_weights)
+    groups = reward.groups
     env_cfg = EnvConfig(
         num_envs=preset.num_envs,
         seed=seed,
@@ -129,6 +134,7 @@ def run_config(
         save_every=save_every,
         preset=preset.name,
         preset_overrides=tuple(overrides),
+        saved_reward=reward if preset.reward_weights else None,
     )
 
 
