@@ -37,6 +37,20 @@ def test_plots_write_pngs(tmp_path):
         ),
         push_survival({"a": {"none": 1.0, "+Fx": 0.5}}, tmp_path / "p.png"),
         campaign_curves(run, tmp_path / "campaign.png", smooth=2),
+        campaign_curves([run, run], tmp_path / "phases.png", smooth=2),
     ]
     for p in pngs:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_campaign_phases_are_one_cumulative_series(tmp_path):
+    from tron1cli.viz.plots import campaign_phases
+
+    for name, n in (("a", 3), ("b", 2)):
+        (tmp_path / name).mkdir()
+        rows = [{"wall_s": 60.0 * (i + 1), "env_steps": 100 * (i + 1)} for i in range(n)]
+        (tmp_path / name / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
+    rows = campaign_phases([tmp_path / "a", tmp_path / "b"])
+    assert [r["wall_s"] for r in rows] == [60.0, 120.0, 180.0, 240.0, 300.0]
+    assert [r["env_steps"] for r in rows] == [100, 200, 300, 400, 500]
+    assert [r["phase"] for r in rows] == [0, 0, 0, 1, 1]

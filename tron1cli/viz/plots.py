@@ -58,17 +58,36 @@ def training_curves(
     return _save(fig, out_png)
 
 
-def campaign_curves(run_dir: Path, out_png: Path, smooth: int = 20) -> Path:
-    """A perceptive run against wall-clock minutes (resumed sessions included): survival and
-    velocity tracking error of both groups, terrain level per type, and the student's heightmap
-    reconstruction error; each curve a running mean over ``smooth`` iterations."""
-    rows = read_metrics(run_dir)
+def campaign_phases(run_dirs: list[Path]) -> list[dict]:
+    """The metrics of a campaign's phases in order (each phase a run started with ``--init`` from
+    the previous one's weights), as one series: ``wall_s`` and ``env_steps`` made cumulative and
+    each row tagged with its ``phase`` index."""
+    out: list[dict] = []
+    wall0 = steps0 = 0.0
+    for i, run_dir in enumerate(run_dirs):
+        rows = read_metrics(run_dir)
+        for m in rows:
+            out.append(m | {"wall_s": m["wall_s"] + wall0, "env_steps": m["env_steps"] + steps0, "phase": i})
+        if rows:
+            wall0, steps0 = out[-1]["wall_s"], out[-1]["env_steps"]
+    return out
+
+
+def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20) -> Path:
+    """A perceptive campaign against wall-clock minutes (resumed sessions included; a list of run
+    directories is its phases in order, each start marked by a dotted line): survival and velocity
+    tracking error of both groups, terrain level per type, and the student's heightmap
+    reconstruction error; each curve a running mean over ``smooth`` iterations within a phase."""
+    dirs = [Path(run_dirs)] if isinstance(run_dirs, (str, Path)) else [Path(d) for d in run_dirs]
+    rows = campaign_phases(dirs)
     t = [m["wall_s"] / 60.0 for m in rows]
 
     def series(key: str) -> list[float]:
-        vals = [m.get(key) for m in rows]
-        out, window = [], []
-        for v in vals:
+        out, window, phase = [], [], None
+        for m in rows:
+            if m["phase"] != phase:
+                window, phase = [], m["phase"]
+            v = m.get(key)
             window = (window + ([v] if v is not None else []))[-smooth:]
             out.append(sum(window) / len(window) if window else float("nan"))
         return out
@@ -85,12 +104,16 @@ def campaign_curves(run_dir: Path, out_png: Path, smooth: int = 20) -> Path:
     a_e.set(ylabel="velocity tracking error (m/s)", ylim=(0, None))
     a_l.set(ylabel="terrain level (0 .. 9 hardest)", ylim=(0, 9.2))
     a_r.set(ylabel="student heightmap error (cm, RMS)", ylim=(0, None))
+    starts = [m["wall_s"] / 60.0 for a, m in zip(rows, rows[1:], strict=False) if m["phase"] != a["phase"]]
     for ax in axes.flat:
+        for x in starts:
+            ax.axvline(x, color="k", ls=":", lw=0.8)
         ax.set_xlabel("wall-clock minutes")
         ax.grid(alpha=0.3)
     for ax in (a_s, a_e, a_l):
         ax.legend(fontsize=8)
-    fig.suptitle(f"{Path(run_dir).name}: {rows[-1]['env_steps'] / 1e6:.1f} M env steps")
+    names = " -> ".join(d.name for d in dirs)
+    fig.suptitle(f"{names}: {rows[-1]['env_steps'] / 1e6:.1f} M env steps")
     return _save(fig, out_png)
 
 
