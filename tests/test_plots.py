@@ -44,13 +44,19 @@ def test_plots_write_pngs(tmp_path):
 
 
 def test_campaign_phases_are_one_cumulative_series(tmp_path):
-    from tron1cli.viz.plots import campaign_phases
+    from tron1cli.viz.campaign import campaign_phases, campaign_table
 
     for name, n in (("a", 3), ("b", 2)):
         (tmp_path / name).mkdir()
-        rows = [{"wall_s": 60.0 * (i + 1), "env_steps": 100 * (i + 1)} for i in range(n)]
+        rows = [{"iteration": k, "wall_s": 60.0 * k, "env_steps": 10**5 * k} for k in range(1, n + 1)]
         (tmp_path / name / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
     rows = campaign_phases([tmp_path / "a", tmp_path / "b"])
     assert [r["wall_s"] for r in rows] == [60.0, 120.0, 180.0, 240.0, 300.0]
-    assert [r["env_steps"] for r in rows] == [100, 200, 300, 400, 500]
+    assert [r["env_steps"] for r in rows] == [10**5 * k for k in range(1, 6)]
     assert [r["phase"] for r in rows] == [0, 0, 0, 1, 1]
+    table = campaign_table(rows, every_min=2.0, smooth=2).splitlines()
+    assert [line.split(" | ")[:4] for line in table[2:]] == [
+        ["| 2", "1", "2", "0.2"],
+        ["| 4", "2", "1", "0.4"],
+        ["| 5", "2", "2", "0.5"],
+    ]

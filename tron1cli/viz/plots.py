@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import matplotlib
@@ -10,11 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-
-def read_metrics(run_dir: Path) -> list[dict]:
-    """The per-iteration metrics of a run directory (``metrics.jsonl``)."""
-    path = Path(run_dir) / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+from tron1cli.viz.campaign import campaign_phases, read_metrics  # noqa: E402
 
 
 def first_reached(
@@ -56,21 +51,6 @@ def training_curves(
         ax.grid(alpha=0.3)
         ax.legend()
     return _save(fig, out_png)
-
-
-def campaign_phases(run_dirs: list[Path]) -> list[dict]:
-    """The metrics of a campaign's phases in order (each phase a run started with ``--init`` from
-    the previous one's weights), as one series: ``wall_s`` and ``env_steps`` made cumulative and
-    each row tagged with its ``phase`` index."""
-    out: list[dict] = []
-    wall0 = steps0 = 0.0
-    for i, run_dir in enumerate(run_dirs):
-        rows = read_metrics(run_dir)
-        for m in rows:
-            out.append(m | {"wall_s": m["wall_s"] + wall0, "env_steps": m["env_steps"] + steps0, "phase": i})
-        if rows:
-            wall0, steps0 = out[-1]["wall_s"], out[-1]["env_steps"]
-    return out
 
 
 def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20) -> Path:
