@@ -228,3 +228,15 @@ def test_lipm_ground_is_the_windowed_terrain_mean_under_the_com():
     flat.step(np.zeros((2, 6)))
     assert np.array_equal(flat.lipm.z, flat.state.com_pos[:, 2])  # a plane: the CoM height itself
     flat.close()
+
+
+def test_one_terrain_type_is_a_terrain_name():
+    from tron1cli.env.terrain import resolve_terrain, terrain_choices
+    from tron1cli.evaluation.protocol import resolve_eval_terrains
+
+    assert resolve_terrain("stairs_up") == ("stairs_up",)
+    assert resolve_terrain("stairs") == ("stairs_up", "stairs_down")
+    assert resolve_eval_terrains("slope_down") == ("slope_down",)
+    assert "(or one type: " in terrain_choices() and "stairs_up" in terrain_choices()
+    with pytest.raises(ValueError, match="or one type: flat, rough, slope_up"):
+        resolve_terrain("lava")

@@ -278,9 +278,11 @@ def terrain_groups() -> dict[str, tuple[str, ...]]:
 
 
 def terrain_choices(extra: tuple[str, ...] = ()) -> str:
-    """The CLI terrain names as help text, e.g. ``flat, rough, slopes, stairs, discrete or mixed``."""
+    """The CLI terrain names as help text, e.g. ``flat, rough, slopes, stairs, discrete or mixed
+    (or one type: flat, rough, slope_up, ...)``."""
     names = [*terrain_groups(), *extra]
-    return ", ".join(names[:-1]) + " or " + names[-1]
+    types = [t for t in TERRAINS if t not in names]
+    return ", ".join(names[:-1]) + " or " + names[-1] + f" (or one type: {', '.join(types)})"
 
 
 #: The registered type names and the CLI groups, derived from the registry at import.
@@ -289,12 +291,16 @@ TERRAIN_GROUPS: dict[str, tuple[str, ...]] = terrain_groups()
 
 
 def resolve_terrain(name: str) -> tuple[str, ...]:
-    """Terrain types for a CLI terrain name (a key of :func:`terrain_groups`)."""
+    """Terrain types for a CLI terrain name: a group (a key of :func:`terrain_groups`) or one
+    registered type (``stairs_up``: that type alone)."""
     groups = terrain_groups()
-    try:
+    if name in groups:
         return groups[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"unknown terrain {name!r}; choose from {', '.join(groups)}") from None
+    if name in TERRAINS:
+        return (name,)
+    raise ValueError(
+        f"unknown terrain {name!r}; choose from {', '.join(groups)} (or one type: {', '.join(TERRAINS)})"
+    )
 
 
 def make_tile(kind: str, difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:

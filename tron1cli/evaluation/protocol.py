@@ -35,7 +35,7 @@ import numpy as np
 from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
-from tron1cli.env.terrain import TERRAIN_GROUPS, TerrainConfig
+from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
 from tron1cli.policy.contract import check_matches_env
 from tron1cli.policy.runtime import Policy
 
@@ -127,12 +127,16 @@ def eval_terrain_config(cfg: TerrainConfig, window_s: float, speed_mps: float) -
 
 
 def resolve_eval_terrains(name: str) -> tuple[str, ...]:
-    """CLI terrain name -> terrain groups to evaluate on (``all``: every Table I column)."""
+    """CLI terrain name -> terrain groups to evaluate on (``all``: every Table I column; one type,
+    e.g. ``stairs_up``, evaluates that type alone)."""
     name = TERRAIN_ALIASES.get(name, name)
     if name == "all":
         return EVAL_TERRAINS
-    if name not in TERRAIN_GROUPS:
-        raise ValueError(f"unknown terrain '{name}'; choose from all, {', '.join(TERRAIN_GROUPS)}")
+    if name not in TERRAIN_GROUPS and name not in TERRAIN_TYPES:
+        raise ValueError(
+            f"unknown terrain '{name}'; choose from all, {', '.join(TERRAIN_GROUPS)} "
+            f"(or one type: {', '.join(TERRAIN_TYPES)})"
+        )
     return (name,)
 
 
