@@ -8,12 +8,19 @@ import typer
 from typer.exceptions import TyperException
 
 from tron1cli import __version__
-from tron1cli.cli import bench as bench_cmd
-from tron1cli.cli import deploy_robot as deploy_robot_cmd
-from tron1cli.cli import deploy_sim as deploy_sim_cmd
-from tron1cli.cli import evaluate as evaluate_cmd
-from tron1cli.cli import export as export_cmd
-from tron1cli.cli import train as train_cmd
+
+try:  # MuJoCo reads MUJOCO_GL when it is first imported, and refuses a value it does not know
+    from tron1cli.cli import bench as bench_cmd
+    from tron1cli.cli import deploy_robot as deploy_robot_cmd
+    from tron1cli.cli import deploy_sim as deploy_sim_cmd
+    from tron1cli.cli import evaluate as evaluate_cmd
+    from tron1cli.cli import export as export_cmd
+    from tron1cli.cli import train as train_cmd
+except RuntimeError as e:
+    if "MUJOCO_GL" not in str(e):
+        raise
+    sys.stderr.write(f"error: {e} (egl, osmesa or glfw; or leave it unset)\n")
+    sys.exit(2)
 from tron1cli.cli.common import fail, route_mujoco_warnings
 from tron1cli.errors import Tron1Error
 
