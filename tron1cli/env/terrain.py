@@ -40,7 +40,10 @@ d in [0, 1] scales them (d = 1 is the paper's hardest):
   walks away from the centre; ``slope_down``: the centre is a summit and the ground FALLS.
 * ``stairs_up`` / ``stairs_down``: pyramid stairs of concentric square rings ``step_tread_m``
   (0.30 m) deep, the first step at the platform edge, step height ``lerp(step_height_m, d)``
-  (5 cm easiest, 20 cm hardest); ``_up`` climbs and ``_down`` descends walking away from the centre.
+  (2 cm easiest, 20 cm hardest, 2 cm a level); ``_up`` climbs and ``_down`` descends walking
+  away from the centre. The easiest step is 2 cm, not the 5 cm of Rudin et al.: a policy from
+  flat ground lifts its feet about 2 cm, and with 5 cm at level 0 it learned to stop at the
+  first riser instead of climbing (README, the perceptive campaign).
 * ``discrete``: ``num_blocks`` random axis-aligned rectangular blocks, sides uniform in
   ``block_size_m`` (0.3-1.0 m), heights uniform in ``[block_height_m[0], lerp(block_height_m, d)]``
   (2-36 cm hardest). Blocks are POSITIVE only (obstacles standing on the ground at 0, overlapping
@@ -94,7 +97,7 @@ class TerrainConfig:
     rough_amp_m: tuple[float, float] = (0.02, 0.15)
     rough_cell_m: float = 0.10
     slope_tan: tuple[float, float] = (0.0, 0.628)
-    step_height_m: tuple[float, float] = (0.05, 0.20)
+    step_height_m: tuple[float, float] = (0.02, 0.20)
     step_tread_m: float = 0.30
     block_size_m: tuple[float, float] = (0.3, 1.0)
     block_height_m: tuple[float, float] = (0.02, 0.36)
