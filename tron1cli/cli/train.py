@@ -338,10 +338,9 @@ def _as_saved(name: str, value):
         if name == "hidden":
             return tuple(int(x) for x in value.split(","))
         if name == "critic_weights":
-            pairs = (kv.split("=") for kv in value.split(",") if kv.strip())
-            return {k.strip(): float(v) for k, v in pairs if float(v) != 1.0}
+            return {k: v for k, v in _pairs(value).items() if v != 1.0}
         if name == "reward_weights":
-            return {k.strip(): float(v) for k, v in (kv.split("=") for kv in value.split(",") if kv.strip())}
+            return _pairs(value)
         if name == "randomize_skip":
             return frozenset(_csv(value))
     except ValueError:
@@ -394,10 +393,15 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
             )
 
 
+def _pairs(text: str) -> dict[str, float]:
+    """``A=1,B=0.5`` -> {A: 1.0, B: 0.5}; ValueError on anything else."""
+    return {k.strip(): float(v) for k, v in (kv.split("=") for kv in text.split(",") if kv.strip())}
+
+
 def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:
-    """``A=1,B=0.5`` -> {A: 1.0, B: 0.5}; exits 2 naming ``option`` on anything else."""
+    """:func:`_pairs` of an option's value, finite; exits 2 naming ``option`` on anything else."""
     try:
-        weights = {k.strip(): float(v) for k, v in (kv.split("=") for kv in text.split(",") if kv.strip())}
+        weights = _pairs(text)
     except ValueError:
         fail(f"{option} wants {key}=NUMBER pairs separated by commas, got '{text}'", 2)
     bad = [k for k, w in weights.items() if not math.isfinite(w)]
