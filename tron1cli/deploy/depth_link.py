@@ -18,10 +18,10 @@ from __future__ import annotations
 import socket
 import struct
 import threading
-import time
 
 import numpy as np
 
+from tron1cli.deploy.depth_source import NewestFrame
 from tron1cli.errors import UsageError
 
 MAGIC = b"T1D1"
@@ -79,7 +79,7 @@ class DepthSender:
         self.sock.close()
 
 
-class UdpDepth:
+class UdpDepth(NewestFrame):
     """Frames from a :class:`DepthSender` on ``port`` (all interfaces), for deploy-robot.
 
     rows, cols: the contract's image size; a frame of another size is dropped and counted in
@@ -87,6 +87,7 @@ class UdpDepth:
     frame arrived (inf before the first)."""
 
     def __init__(self, port: int, rows: int, cols: int, host: str = "0.0.0.0") -> None:
+        super().__init__()
         self.rows, self.cols = int(rows), int(cols)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -99,10 +100,7 @@ class UdpDepth:
         self.received = 0
         self.foreign = 0
         self.late = 0
-        self._frame: np.ndarray | None = None
-        self._seq = -1
-        self._t_arrival = -np.inf
-        self._lock = threading.Lock()
+        self._seq = -1  # the newest frame's; only the receiver thread reads or writes it
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="tron1-udp-depth", daemon=True)
 
@@ -122,20 +120,12 @@ class UdpDepth:
                 self.foreign += 1
                 continue
             seq, _, image = frame
-            with self._lock:
-                if self._seq - 100 < seq <= self._seq:  # reordered: keep the newer (far back: a restart)
-                    self.late += 1
-                    continue
-                self._seq, self._frame, self._t_arrival = seq, image, time.monotonic()
-                self.received += 1
-
-    def newest(self) -> np.ndarray | None:
-        with self._lock:
-            return self._frame
-
-    def age_s(self) -> float:
-        with self._lock:
-            return time.monotonic() - self._t_arrival
+            if self._seq - 100 < seq <= self._seq:  # reordered: keep the newer (far back: a restart)
+                self.late += 1
+                continue
+            self._seq = seq
+            self._put(image)
+            self.received += 1
 
     def close(self) -> None:
         self._stop.set()

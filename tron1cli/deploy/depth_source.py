@@ -32,6 +32,28 @@ class DepthSource(Protocol):
     def close(self) -> None: ...
 
 
+class NewestFrame:
+    """The newest frame of a depth source and when it arrived (monotonic s), guarded by a lock:
+    the source's reader thread calls :meth:`_put`, the controller :meth:`newest` and :meth:`age_s`."""
+
+    def __init__(self) -> None:
+        self._frame: np.ndarray | None = None
+        self._t_arrival = -np.inf
+        self._lock = threading.Lock()
+
+    def _put(self, image: np.ndarray) -> None:
+        with self._lock:
+            self._frame, self._t_arrival = image, time.monotonic()
+
+    def newest(self) -> np.ndarray | None:
+        with self._lock:
+            return self._frame
+
+    def age_s(self) -> float:
+        with self._lock:
+            return time.monotonic() - self._t_arrival
+
+
 def crop_resize(
     depth_m: np.ndarray, fov_have: tuple[float, float], fov_want: tuple[float, float], rows: int, cols: int
 ) -> np.ndarray:
@@ -47,7 +69,7 @@ def crop_resize(
     return depth_m[np.ix_(ys, xs)].astype(np.float32)
 
 
-class RealSenseDepth:
+class RealSenseDepth(NewestFrame):
     """A D435i's depth stream as the contract's image (``contract["depth"]``), 30 Hz in its own
     thread. Untested here: no camera on this machine."""
 
@@ -56,14 +78,12 @@ class RealSenseDepth:
             import pyrealsense2 as rs
         except ImportError:
             raise Tron1Error("--depth realsense needs pyrealsense2 (pip install pyrealsense2)") from None
+        super().__init__()
         self.rs = rs
         self.rows, self.cols = int(depth_contract["rows"]), int(depth_contract["cols"])
         self.near, self.far = (float(x) for x in depth_contract["range_m"])
         self.fov_want = tuple(float(x) for x in depth_contract["fov_deg"])
         self.size, self.fps = (width, height), fps
-        self._frame: np.ndarray | None = None
-        self._t_arrival = -np.inf
-        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="tron1-realsense", daemon=True)
         self.pipe = None
@@ -91,16 +111,7 @@ class RealSenseDepth:
             img = np.asanyarray(d.get_data()).astype(np.float32) * self.scale
             img = crop_resize(img, self.fov_have, self.fov_want, self.rows, self.cols)
             img[(img < self.near) | (img > self.far)] = 0.0
-            with self._lock:
-                self._frame, self._t_arrival = img, time.monotonic()
-
-    def newest(self) -> np.ndarray | None:
-        with self._lock:
-            return self._frame
-
-    def age_s(self) -> float:
-        with self._lock:
-            return time.monotonic() - self._t_arrival
+            self._put(img)
 
     def close(self) -> None:
         self._stop.set()

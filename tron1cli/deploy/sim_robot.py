@@ -241,8 +241,8 @@ class _Camera:
         self.sim, self.cam = sim, sensors.DepthCamera()
         self.cam_id = sim.model.camera(robot.CAMERA_NAME).id
         self.period = 1.0 / cfg.depth_hz
-        self.maps = sensors.depth_max_maps(sim.bank.heights[sim.tile : sim.tile + 1])
-        self.heights = sim.bank.heights[sim.tile : sim.tile + 1]
+        self.heights = sim.bank.heights[sim.tile : sim.tile + 1]  # the one tile it stands on
+        self.maps = sensors.depth_max_maps(self.heights)
         self.noise = cfg.noise
         self.rng = np.random.default_rng([cfg.seed, 30])
         self.sender = DepthSender(*cfg.depth_to)

@@ -102,8 +102,7 @@ class Tron1Env:
         self.policy_dt = cfg.policy_dt
         self.max_episode_steps = cfg.max_episode_steps
         self.commands = Commands(cfg.commands, self.n, cfg.gait)
-        uses_clock = any(name.startswith("gait_") for name in self.reward_cfg.terms)
-        if uses_clock and not cfg.gait.enabled:
+        if self.reward_cfg.clock_terms and not cfg.gait.enabled:
             raise ValueError("the reward has gait-schedule terms but the env's gait prior is off")
         self.rewards = RewardManager(self.reward_cfg, self.n, self.policy_dt)
         self.lipm = LipmTracker(self.n, self.reward_cfg.lipm_kp, self.reward_cfg.z_c)

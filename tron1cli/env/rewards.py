@@ -97,6 +97,11 @@ class RewardConfig:
             raise ValueError(f"lipm_ground_window_m must be >= 0, got {self.lipm_ground_window_m!r}")
 
     @property
+    def clock_terms(self) -> tuple[str, ...]:
+        """The terms that follow the gait prior's clock (``gait_*``): they need the prior on."""
+        return tuple(k for k in self.terms if k.startswith("gait_"))
+
+    @property
     def groups(self) -> tuple[str, ...]:
         """Reward groups in a fixed order (stable first), one critic each."""
         gs = {t.group for t in self.terms.values()}

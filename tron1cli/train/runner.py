@@ -66,7 +66,7 @@ class RunConfig:
             raise ValueError(f"save_every must be positive, got {self.save_every}")
         if self.gait_prior != self.env.gait.enabled:
             raise ValueError("gait_prior and env.gait.enabled disagree")
-        clocked = [k for k in self.reward.terms if k.startswith("gait_")]
+        clocked = self.reward.clock_terms
         if clocked and not self.gait_prior:
             raise ValueError(f"reward term {clocked[0]} follows the gait clock: it needs --gait-prior")
 
