@@ -16,6 +16,7 @@ from tron1cli.cli.evaluate import parse_groups, parse_speeds
 from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
 from tron1cli.env.terrain import TerrainConfig
+from tron1cli.errors import Tron1Error
 from tron1cli.evaluation.protocol import (
     EvalSpec,
     aggregate,
@@ -85,6 +86,74 @@ def test_same_seed_same_metrics_and_checkpoint_equals_onnx(tiny_ckpt, tmp_path):
 def test_reconstruction_error_for_a_vision_policy_on_stairs(tiny_ckpt_vision):
     res = run_batch(load_policy(tiny_ckpt_vision), EvalSpec("stairs", 5, num_envs=4, steps=20))
     assert res.metrics["reconstruction_error_cm"] is not None and res.metrics["reconstruction_error_cm"] > 0
+
+
+def test_teacher_acts_on_privileged_observations_without_a_camera(tiny_ckpt_vision):
+    import torch
+
+    from tron1cli.learn import LearnerConfig, ObsDims, VisionCTS
+    from tron1cli.train.checkpoint import load_checkpoint
+
+    teacher = load_policy(tiny_ckpt_vision, "teacher")
+    assert teacher.actor == "teacher" and load_policy(tiny_ckpt_vision).actor == "student"
+    spec = EvalSpec("stairs", 3, num_envs=4, steps=15)
+    env = make_env(teacher, spec)
+    try:
+        assert env.cfg.depth_from == env.n  # no student: no depth render
+        obs = env.reset()
+        hidden = teacher.initial_hidden(env.n)
+        action, hidden_next, h_hat = teacher.act(obs, hidden)
+    finally:
+        env.close()
+    # the same action by hand from the checkpoint's model: normalise, teacher latents, actor
+    sd = load_checkpoint(tiny_ckpt_vision)["learner"]
+    model = VisionCTS(
+        ObsDims.from_dict(sd["dims"]), tuple(sd["groups"]), LearnerConfig.from_dict(sd["config"])
+    )
+    model.load_state_dict(sd["model"])
+    with torch.no_grad():
+        raw = {
+            k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32))
+            for k in ("proprio", "history", "privileged", "heightmap")
+        }
+        ob = model.normalize(raw)
+        le, lh = model.teacher_latents(ob["privileged"], ob["heightmap"])
+        expected = model.action_mean(ob["proprio"], le, lh).numpy()
+    np.testing.assert_allclose(action, expected, rtol=1e-6, atol=1e-6)
+    assert h_hat.shape == (env.n, 0) and (hidden_next == hidden).all()
+    res = run_batch(teacher, spec)
+    assert res.metrics["reconstruction_error_cm"] is None and 0.0 <= res.metrics["success_rate"] <= 1.0
+    with pytest.raises(Tron1Error, match="loaded as its teacher"):
+        teacher.step(obs["history"], obs["depth"], hidden)
+
+
+def test_teacher_needs_a_checkpoint(tiny_ckpt, tmp_path):
+    from tron1cli.policy.export import export_onnx
+
+    onnx = export_onnx(tiny_ckpt, tmp_path / "p.onnx", parity_steps=5).path
+    with pytest.raises(Tron1Error, match="holds the student only"):
+        load_policy(onnx, "teacher")
+    with pytest.raises(ValueError, match="unknown actor"):
+        load_policy(tiny_ckpt, "coach")
+    r = tron1("eval", str(onnx), "--actor", "teacher", "--terrain", "flat", "--envs", "2", "--steps", "3")
+    assert r.returncode != 0 and "student only" in r.stderr and "Traceback" not in r.stderr
+    r = tron1("eval", str(tiny_ckpt), "--actor", "coach", "--terrain", "flat")
+    assert r.returncode == 2 and "unknown --actor 'coach'" in r.stderr
+    r = tron1(
+        "eval",
+        str(tiny_ckpt),
+        "--actor",
+        "teacher",
+        "--terrain",
+        "flat",
+        "--envs",
+        "2",
+        "--steps",
+        "5",
+        "--json",
+    )
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["protocol"]["actor"] == "teacher"
 
 
 def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):

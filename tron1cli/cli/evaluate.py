@@ -172,6 +172,12 @@ def eval_cmd(
         ),
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the eval envs."),
+    actor: str = typer.Option(
+        "student",
+        "--actor",
+        help="Who acts: student (the deployed policy: history and depth) or teacher (a checkpoint's "
+        "privileged e_t and true heightmap; measures the teacher-student gap).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
         None, "--out", help="Write results.json, results.csv and plots here."
@@ -206,9 +212,11 @@ def eval_cmd(
         resolve_eval_terrains,
         run_batch,
     )
-    from tron1cli.policy.runtime import load_policy
+    from tron1cli.policy.runtime import ACTORS, load_policy
 
     try:
+        if actor not in ACTORS:
+            raise ValueError(f"unknown --actor '{actor}'; choose from {', '.join(ACTORS)}")
         groups = parse_groups(policies)
         terrains = resolve_eval_terrains(terrain)
         plan = parse_speeds(speeds or [])
@@ -225,7 +233,7 @@ def eval_cmd(
     from tron1cli.viz.video import DEFAULT_SIZE
 
     recorder = open_video(video, video_size, DEFAULT_SIZE)
-    loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
+    loaded = {label: [load_policy(p, actor) for p in paths] for label, paths in groups.items()}
     check_levels(loaded, level)
     try:  # a sweep speed must lie inside every policy's training command range
         for pols in loaded.values():
@@ -289,6 +297,7 @@ def eval_cmd(
             "window_s": steps * next(iter(loaded.values()))[0].run_cfg.env.policy_dt,
             "randomize": randomize,
             "seed": seed,
+            "actor": actor,
             "eval_tile_m": first["tile_m"],
         },
         "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
@@ -315,7 +324,8 @@ def eval_cmd(
         return
     table = Table(
         title="tron1 eval (Table I)",
-        caption=f"level {level}, {envs} envs x {steps} steps, randomisation {'on' if randomize else 'off'}, "
+        caption=f"{actor}s, level {level}, {envs} envs x {steps} steps, "
+        f"randomisation {'on' if randomize else 'off'}, "
         f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; success in %",
     )
     table.add_column("method")

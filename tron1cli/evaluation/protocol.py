@@ -197,7 +197,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         seed=spec.seed,
         terrain=spec.terrain,
         curriculum=False,
-        depth_from=0,
+        depth_from=spec.num_envs if policy.actor == "teacher" else 0,  # a teacher needs no camera
         randomization=base.randomization if spec.randomize else RandomizationConfig(),
         pushes=spec.pushes or PushConfig(),
         commands=commands,
@@ -275,7 +275,7 @@ def run_batch(
         rec_sum, rec_count = 0.0, 0
         for t in range(spec.steps):
             walking = ~fell & ~left
-            action, hidden, h_hat, _ = policy.step(obs["history"], policy.depth_input(obs, n), hidden)
+            action, hidden, h_hat = policy.act(obs, hidden)
             if h_hat.shape[1] and "heightmap" in obs:
                 err = np.abs(h_hat[walking] - obs["heightmap"][walking])
                 rec_sum += float(err.sum())
@@ -283,7 +283,8 @@ def run_batch(
             if before_step is not None:
                 before_step(env, t)
             if stream is not None:
-                stream.log_step(env, stream_env, t, t * env.policy_dt, extras={"h_hat": h_hat})
+                extras = {"h_hat": h_hat} if h_hat.shape[1] else None
+                stream.log_step(env, stream_env, t, t * env.policy_dt, extras=extras)
             res = env.step(action)
             if video is not None:
                 video.step(env, (t + 1) * env.policy_dt, res.done)

@@ -3,7 +3,9 @@
 Both give the same object: :class:`Policy`, a batched, deterministic step
 ``(history, depth, hidden) -> (action, hidden_next, h_hat, e_hat)`` in numpy, with the contract
 (:mod:`tron1cli.policy.contract`) that says which env it expects. Evaluation, push tests and
-deploy-sim drive either kind through this one interface.
+deploy-sim drive either kind through this one interface. A checkpoint can also be loaded as its
+teacher (``actor="teacher"``: privileged e_t and the true heightmap instead of the estimators), so
+that the evaluation protocol measures the teacher-student gap.
 """
 
 from __future__ import annotations
@@ -22,9 +24,12 @@ from tron1cli.policy import contract as pc
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
-    """(StudentPolicy in eval mode, RunConfig, the raw checkpoint) of a training checkpoint."""
-    from tron1cli.learn import LearnerConfig, ObsDims, StudentPolicy, VisionCTS
+ACTORS = ("student", "teacher")
+
+
+def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
+    """(VisionCTS in eval mode, no gradients, RunConfig, the raw checkpoint) of a training checkpoint."""
+    from tron1cli.learn import LearnerConfig, ObsDims, VisionCTS
     from tron1cli.train.checkpoint import load_checkpoint
     from tron1cli.train.runner import RunConfig
 
@@ -41,15 +46,24 @@ def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not torch.isfinite(v).all()]
     if bad:
         raise Tron1Error(f"{path}: the policy's weights are not finite (NaN or inf in {bad[0]})")
-    student = StudentPolicy(model).eval()
-    for p in student.parameters():
+    model.eval()
+    for p in model.parameters():
         p.requires_grad_(False)
-    return student, run_cfg, state
+    return model, run_cfg, state
+
+
+def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
+    """(StudentPolicy in eval mode, RunConfig, the raw checkpoint) of a training checkpoint."""
+    from tron1cli.learn import StudentPolicy
+
+    model, run_cfg, state = _load_model(path)
+    return StudentPolicy(model).eval(), run_cfg, state
 
 
 @dataclass
 class Policy:
-    """A deterministic student policy, batched over B rows.
+    """A deterministic policy, batched over B rows: a student (checkpoint or ONNX) or the teacher
+    of a checkpoint.
 
     path: where it came from; kind: "checkpoint" or "onnx"; contract: its deployment contract;
     run_cfg: the RunConfig it was trained with (rebuilt from the contract for ONNX files).
@@ -61,6 +75,11 @@ class Policy:
     run_cfg: Any
     _torch: torch.nn.Module | None = None
     _ort: Any = None
+    _teacher: torch.nn.Module | None = None  # the whole VisionCTS when the teacher acts
+
+    @property
+    def actor(self) -> str:
+        return "teacher" if self._teacher is not None else "student"
 
     @property
     def gru_hidden(self) -> int:
@@ -84,8 +103,26 @@ class Policy:
             return np.zeros((batch, 1, 1), dtype=np.float32)
         return np.asarray(obs["depth"], dtype=np.float32)
 
+    def act(
+        self, obs: dict[str, np.ndarray], hidden: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One step from the env's observation groups: (action, hidden_next, h_hat (m; no columns
+        for the teacher, which reads the true heightmap))."""
+        if self._teacher is None:
+            action, hidden, h_hat, _ = self.step(obs["history"], self.depth_input(obs, len(hidden)), hidden)
+            return action, hidden, h_hat
+        m = self._teacher
+        keys = ("proprio", "history", "privileged") + (("heightmap",) if m.latent_h_dim else ())
+        with torch.no_grad():
+            ob = m.normalize({k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32)) for k in keys})
+            le, lh = m.teacher_latents(ob["privileged"], ob.get("heightmap"))
+            action = m.action_mean(ob["proprio"], le, lh).numpy()
+        return action, hidden, np.zeros((len(action), 0), dtype=np.float32)
+
     def step(self, history: np.ndarray, depth: np.ndarray, hidden: np.ndarray) -> Arrays:
-        """One policy step for B rows: returns (action, hidden_next, h_hat (m), e_hat), numpy float32."""
+        """One student step for B rows: returns (action, hidden_next, h_hat (m), e_hat), numpy float32."""
+        if self._teacher is not None:
+            raise Tron1Error(f"{self.path}: loaded as its teacher, which acts on privileged observations")
         history = np.ascontiguousarray(history, dtype=np.float32)
         depth = np.ascontiguousarray(depth, dtype=np.float32)
         hidden = np.ascontiguousarray(hidden, dtype=np.float32)
@@ -173,11 +210,22 @@ def onnx_policy(model, path: Path) -> Policy:
     return Policy(path, "onnx", contract, run_cfg, _ort=sess)
 
 
-def load_policy(path: Path | str) -> Policy:
-    """Load ``path`` (a ``.pt`` checkpoint or an ``.onnx`` export); bad files raise Tron1Error."""
+def load_policy(path: Path | str, actor: str = "student") -> Policy:
+    """Load ``path`` (a ``.pt`` checkpoint or an ``.onnx`` export) as its student, or a checkpoint as
+    its teacher (``actor="teacher"``); bad files raise Tron1Error."""
     path = Path(path)
+    if actor not in ACTORS:
+        raise ValueError(f"unknown actor '{actor}'; choose from {', '.join(ACTORS)}")
     if not path.is_file():
         raise Tron1Error(f"policy not found: {path}")
+    if actor == "teacher":
+        if path.suffix == ".onnx":
+            raise Tron1Error(
+                f"{path}: an ONNX export holds the student only; the teacher needs the checkpoint"
+            )
+        model, run_cfg, state = _load_model(path)
+        contract = pc.build_contract(run_cfg, int(state["learner"]["config"]["gru_hidden"]), str(path))
+        return Policy(path, "checkpoint", contract, run_cfg, _teacher=model)
     if path.suffix == ".onnx":
         import onnx
 
