@@ -218,15 +218,11 @@ def load_policy(path: Path | str, actor: str = "student") -> Policy:
         raise ValueError(f"unknown actor '{actor}'; choose from {', '.join(ACTORS)}")
     if not path.is_file():
         raise Tron1Error(f"policy not found: {path}")
-    if actor == "teacher":
-        if path.suffix == ".onnx":
+    if path.suffix == ".onnx":
+        if actor == "teacher":
             raise Tron1Error(
                 f"{path}: an ONNX export holds the student only; the teacher needs the checkpoint"
             )
-        model, run_cfg, state = _load_model(path)
-        contract = pc.build_contract(run_cfg, int(state["learner"]["config"]["gru_hidden"]), str(path))
-        return Policy(path, "checkpoint", contract, run_cfg, _teacher=model)
-    if path.suffix == ".onnx":
         import onnx
 
         try:
@@ -234,6 +230,10 @@ def load_policy(path: Path | str, actor: str = "student") -> Policy:
         except Exception as e:  # protobuf raises its own DecodeError types
             raise Tron1Error(f"cannot read ONNX file {path}: {type(e).__name__}") from e
         return onnx_policy(model, path)
-    student, run_cfg, state = load_student(path)
+    from tron1cli.learn import StudentPolicy
+
+    model, run_cfg, state = _load_model(path)
     contract = pc.build_contract(run_cfg, int(state["learner"]["config"]["gru_hidden"]), str(path))
-    return Policy(path, "checkpoint", contract, run_cfg, _torch=student)
+    if actor == "teacher":
+        return Policy(path, "checkpoint", contract, run_cfg, _teacher=model)
+    return Policy(path, "checkpoint", contract, run_cfg, _torch=StudentPolicy(model).eval())
