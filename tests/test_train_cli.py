@@ -232,6 +232,39 @@ def test_resumed_run_keeps_its_terrain_levels(tmp_path):
         resumed.close()
 
 
+def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
+    """A new campaign phase (--init) starts on the levels its source reached when both runs train
+    on the same terrain bank with the same env count; otherwise the curriculum starts at level 0."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from tron1cli.config.presets import perceptive
+    from tron1cli.train.runner import Trainer, run_config
+
+    preset = replace(perceptive("stairs"), num_envs=8, steps_per_env=4, hidden=(16,))
+    source = Trainer(tmp_path / "a", run_config(preset, nthread=1))
+    cur, bank = source.env.curriculum, source.env.bank
+    cur.level[:] = np.arange(8) % bank.cfg.num_levels
+    cur.tile[:] = bank.tile_index(cur.kind, cur.level, np.ones(8, int))
+    ckpt = source.save()
+    source.close()
+    same = Trainer(tmp_path / "b", run_config(replace(preset, steps_per_env=2), nthread=1), init=ckpt)
+    try:
+        assert same.levels_carried and same.cfg.init_from.endswith("(iteration 0), terrain levels carried")
+        assert np.array_equal(same.env.curriculum.level, cur.level)
+        assert np.array_equal(same.env.curriculum.tile, cur.tile)
+    finally:
+        same.close()
+    for other in (replace(preset, terrain="slopes"), replace(preset, num_envs=16)):
+        fresh = Trainer(tmp_path / other.terrain / str(other.num_envs), run_config(other, nthread=1), init=ckpt)
+        try:
+            assert not fresh.levels_carried and not fresh.cfg.init_from.endswith("carried")
+            assert not fresh.env.curriculum.level.any()
+        finally:
+            fresh.close()
+
+
 def test_reward_weights_are_recorded_printed_and_kept_on_resume(tmp_path):
     run = tmp_path / "r"
     r = tron1("train", *SMALL, "--iterations", "1", "--reward-weights", "alive=0.5", "--run-dir", str(run))

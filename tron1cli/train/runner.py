@@ -217,11 +217,17 @@ class Trainer:
         self.wall_s = 0.0
         #: what --init copied (None without it, and on resume)
         self.warm_start: WarmStart | None = None
+        #: --init put the envs on the source run's terrain levels (:meth:`_carry_levels`)
+        self.levels_carried = False
         if source is not None:
             self.warm_start = warm_start(self.learner.model, source["learner"]["model"])
             if not self.warm_start.copied and not self.warm_start.widened:
                 raise Tron1Error(f"--init {init}: the checkpoint shares no weights with this run's networks")
-            self.cfg = cfg = replace(cfg, init_from=f"{init} (iteration {int(source['iteration'])})")
+            origin = f"{init} (iteration {int(source['iteration'])})"
+            self.levels_carried = self._carry_levels(source)
+            if self.levels_carried:
+                origin += ", terrain levels carried"
+            self.cfg = cfg = replace(cfg, init_from=origin)
         if state is not None:
             self.learner.load_state_dict(state["learner"])
             if "curriculum" in state and self.env.model.nhfield:  # the terrain levels reached
@@ -233,6 +239,19 @@ class Trainer:
         #: the iteration of the checkpoint on disk (None before the first save)
         self.saved_iteration: int | None = self.iteration if state is not None else None
         self.stats = EpisodeStats()
+
+    def _carry_levels(self, source: dict) -> bool:
+        """``--init``: start every env on the terrain level and tile it had in the source run, when
+        that run trained on the same terrain bank (terrain, tile geometry, seed) with the same env
+        count, so a new phase of a campaign does not climb the curriculum again from level 0."""
+        if "curriculum" not in source or not self.env.model.nhfield or not self.cfg.env.curriculum:
+            return False
+        mine = self.cfg.to_dict()["env"]
+        theirs = json.loads(source["config"])["env"]
+        if any(theirs.get(k) != mine[k] for k in ("terrain", "terrain_cfg", "num_envs", "seed")):
+            return False
+        self.env.restore_curriculum({k: v.numpy() for k, v in source["curriculum"].items()})
+        return True
 
     # -- persistence ------------------------------------------------------------------------
     def nonfinite(self) -> list[str]:
