@@ -257,7 +257,8 @@ def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
     finally:
         same.close()
     for other in (replace(preset, terrain="slopes"), replace(preset, num_envs=16)):
-        fresh = Trainer(tmp_path / other.terrain / str(other.num_envs), run_config(other, nthread=1), init=ckpt)
+        run_dir = tmp_path / f"{other.terrain}{other.num_envs}"
+        fresh = Trainer(run_dir, run_config(other, nthread=1), init=ckpt)
         try:
             assert not fresh.levels_carried and not fresh.cfg.init_from.endswith("carried")
             assert not fresh.env.curriculum.level.any()
