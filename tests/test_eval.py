@@ -184,6 +184,7 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
         "velocity_tracking_error",
         "reconstruction_error_cm",
         "exposure_s",
+        "command_progress",
     ):
         assert set(m[key]) == {"mean", "std", "n"}
     assert m["success_rate"]["n"] == 2 and m["success_rate"]["std"] == 0.0  # same policy twice
@@ -284,6 +285,15 @@ def test_frame_errors_hand_computed():
     np.testing.assert_allclose(v, [1.0, 0.5])
 
 
+def test_command_progress_hand_computed():
+    from tron1cli.evaluation.protocol import command_progress_terms
+
+    cmd = np.array([[1.0, 0.0], [0.0, 0.5], [0.01, 0.0]])  # the last one is a standing command
+    v = np.array([[0.5, 0.5], [0.0, -0.5], [3.0, 3.0]])
+    assert command_progress_terms(cmd, v) == pytest.approx((0.5 - 0.5, 1.5))
+    assert command_progress_terms(cmd[2:], v[2:]) == (0.0, 0.0)
+
+
 def test_heading_frame_push_rotates_with_the_robot():
     from tron1cli.evaluation.pushes import heading_to_world
 
@@ -379,6 +389,7 @@ def test_full_window_at_1p25_mps_on_flat(tiny_ckpt):
     np.testing.assert_array_equal(res.exposure_s, [10.0, 10.0])
     assert res.metrics["exposure_s"] == pytest.approx(10.0) and res.metrics["success_rate"] == 1.0
     assert not res.left.any() and not res.fell.any()
+    assert res.metrics["command_progress"] == pytest.approx(1.0, abs=0.01)  # all it was asked
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

@@ -168,6 +168,7 @@ def eval_cmd(
                 "velocity_tracking_error",
                 "reconstruction_error_cm",
                 "exposure_s",
+                "command_progress",
             )
         ),
     ),
@@ -201,7 +202,8 @@ def eval_cmd(
     success_rate: share of envs not fallen in the window; orientation_error: |g_b - (0,0,-1)|;
     angular_velocity_error: mean |w_x|, |w_y| (rad/s); velocity_tracking_error: |v_cmd,xy - v_xy|
     (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm);
-    exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window).
+    exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window);
+    command_progress: distance walked along the command over the distance commanded (ours).
     """
     from tron1cli.evaluation.protocol import (
         METRICS,
