@@ -64,6 +64,12 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--reward-weights", "lava=1"], 2, "unknown reward term 'lava'"),
         (["--reward-weights", "alive=inf"], 2, "alive=inf is not a finite number"),
         (["--reward-weights", "alive"], 2, "wants TERM=NUMBER pairs"),
+        (["--learner", "lr"], 2, "--learner: wants KEY=VALUE pairs"),
+        (["--learner", "lava=1"], 2, "unknown or non-scalar learner setting 'lava'; choose from num_epochs"),
+        (["--learner", "precision=bf16"], 2, "precision has its own option: --precision"),
+        (["--learner", "rec_batch_envs=0.5"], 2, "rec_batch_envs=0.5 is not an integer"),
+        (["--learner", "rec_all_envs=maybe"], 2, "rec_all_envs=maybe is not true or false"),
+        (["--learner", "gamma=2"], 2, "gamma and lam must lie in [0, 1]"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, args, code, text):
@@ -230,6 +236,27 @@ def test_resumed_run_keeps_its_terrain_levels(tmp_path):
             resumed.env.restore_curriculum({"level": cur.level + 1, "tile": cur.tile})
     finally:
         resumed.close()
+
+
+def test_learner_settings_are_parsed_recorded_printed_and_kept_on_resume(tmp_path):
+    run = tmp_path / "r"
+    settings = "rec_batch_envs=4,entropy_coef=0.002,desired_kl=none,clip_value_loss=off"
+    r = tron1("train", *SMALL, "--iterations", "1", "--learner", settings, "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    shown = "learner desired_kl=None, entropy_coef=0.002, clip_value_loss=False, rec_batch_envs=4,"
+    assert shown in " ".join(r.stderr.split())
+    c = json.loads((run / "config.json").read_text())
+    lr = c["learner"]
+    got = (lr["rec_batch_envs"], lr["entropy_coef"], lr["desired_kl"], lr["clip_value_loss"])
+    assert got == (4, 0.002, None, False)
+    assert lr["lr"] == 1e-3 and "learner" in c["preset_overrides"]  # the rest stays at the defaults
+    resume = ("train", "--resume", "--iterations", "2", "--run-dir", str(run))
+    r = tron1(*resume, "--learner", "rec_batch_envs=8")
+    assert r.returncode == 2 and "started with --learner rec_batch_envs=4" in " ".join(r.stderr.split())
+    r = tron1(*resume, "--learner", "entropy_coef=0.002")  # the value it was started with
+    assert r.returncode == 0, r.stderr
+    saved = json.loads(load_checkpoint(run / "checkpoints" / "latest.pt")["config"])["learner"]
+    assert saved["rec_batch_envs"] == 4 and saved["desired_kl"] is None
 
 
 def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):

@@ -39,6 +39,7 @@ PRESET_OPTIONS = (
     "hidden",
     "critic_weights",
     "reward_weights",
+    "learner",
     "perception",
     "randomize",
     "randomize_skip",
@@ -138,6 +139,12 @@ def train(
         "--reward-weights",
         help="Per-second weights of reward terms replacing the defaults, e.g. alive=0.5 "
         "(terms: README, Reward; a run's own in its config.json).",
+    ),
+    learner: str = typer.Option(
+        "",
+        "--learner",
+        help="Learner settings replacing the defaults, KEY=VALUE pairs, e.g. "
+        "rec_batch_envs=256,entropy_coef=0.001 (the scalar fields of tron1cli.learn.LearnerConfig).",
     ),
     rerun: str = typer.Option(
         "off",
@@ -269,6 +276,13 @@ def train(
         )
     except ValueError as e:
         fail(str(e), 2)
+    if "learner" in given:
+        from tron1cli.learn.config import with_overrides
+
+        try:
+            cfg = replace(cfg, learner=with_overrides(cfg.learner, _settings(learner)))
+        except ValueError as e:
+            fail(f"--learner: {e}", 2)
     n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
     if n_teacher >= cfg.env.num_envs:
         fail(
@@ -311,6 +325,8 @@ def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, reru
 
 #: what a run fixes (--resume keeps it): option -> its value in a saved RunConfig
 def _saved_values(cfg) -> dict:
+    from tron1cli.learn.config import tunable_fields
+
     e, lr = cfg.env, cfg.learner
     terms = e.randomization.terms
     return {
@@ -322,6 +338,7 @@ def _saved_values(cfg) -> dict:
         "hidden": tuple(lr.actor_hidden),
         "critic_weights": {k: float(v) for k, v in lr.critic_weights.items() if float(v) != 1.0},
         "reward_weights": {k: t.weight for k, t in cfg.reward.terms.items()},
+        "learner": {k: getattr(lr, k) for k in tunable_fields()},
         "perception": e.perception,
         "randomize": bool(terms),
         "randomize_skip": frozenset(t for t in ALL_TERMS if t not in terms) if terms else frozenset(),
@@ -355,7 +372,7 @@ def _shown(name: str, value) -> str:
     if isinstance(value, tuple):
         value = ",".join(str(x) for x in value)
     elif isinstance(value, dict):
-        value = ",".join(f"{k}={v:g}" for k, v in value.items()) or "(all 1)"
+        value = ",".join(f"{k}={_value(v)}" for k, v in value.items()) or "(all 1)"
     elif isinstance(value, frozenset):
         value = ",".join(t for t in ALL_TERMS if t in value) or "(none)"
     return f"{flag} {value}"
@@ -376,10 +393,20 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
     for name, was in saved.items():
         if not _given(ctx, name):
             continue
-        now = _as_saved(name, ctx.params[name])
+        if name == "learner":
+            from tron1cli.learn.config import LearnerConfig, with_overrides
+
+            try:
+                pairs = _settings(ctx.params[name])
+                parsed = with_overrides(LearnerConfig(), pairs)
+            except ValueError as e:
+                fail(f"--learner: {e}", 2)
+            now = {k: getattr(parsed, k) for k in pairs}
+        else:
+            now = _as_saved(name, ctx.params[name])
         if name == "teacher_ratio" and not isinstance(now, str):
             same = abs(float(now) - float(was)) < 1e-12
-        elif name == "reward_weights" and isinstance(now, dict):  # only the terms given
+        elif name in ("reward_weights", "learner") and isinstance(now, dict):  # only the keys given
             same = all(was.get(k) == v for k, v in now.items())
             was = {k: was.get(k, float("nan")) for k in now}
         else:
@@ -391,6 +418,18 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
                 "it as saved; leave the option out, or start a new run in another --run-dir",
                 2,
             )
+
+
+def _value(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _settings(text: str) -> dict[str, str]:
+    """``A=1,B=off`` -> {A: "1", B: "off"}; ValueError on a pair without ``=``."""
+    pairs = [kv.split("=") for kv in text.split(",") if kv.strip()]
+    if not pairs or any(len(kv) != 2 or not kv[0].strip() for kv in pairs):
+        raise ValueError(f"wants KEY=VALUE pairs separated by commas, got '{text}'")
+    return {k.strip(): v.strip() for k, v in pairs}
 
 
 def _pairs(text: str) -> dict[str, float]:
@@ -428,7 +467,7 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         f"{c.learner.num_steps_per_env} steps x {c.iterations:,} iterations, {_preset_summary(c)}, "
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"critic weights {_weights_summary(c.learner.critic_weights)}, "
-        f"reward weights {_reward_summary(c)}, "
+        f"reward weights {_reward_summary(c)}, learner {_learner_summary(c)}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
         f"seed {c.env.seed}, {c.env.nthread} threads, learner on {trainer.learner.device.type} in "
@@ -509,6 +548,14 @@ def _reward_summary(c) -> str:
     default = make_reward_config(c.ablation, gait_prior=c.gait_prior).terms
     changed = {k: t.weight for k, t in c.reward.terms.items() if k not in default or default[k] != t}
     return ", ".join(f"{k}={w:g}" for k, w in changed.items()) or "default"
+
+
+def _learner_summary(c) -> str:
+    """'default' or the ``--learner`` settings that differ from this version's defaults."""
+    from tron1cli.learn.config import tunable_fields
+
+    changed = {k: getattr(c.learner, k) for k, v in tunable_fields().items() if getattr(c.learner, k) != v}
+    return ", ".join(f"{k}={_value(v)}" for k, v in changed.items()) or "default"
 
 
 def _weights_summary(weights: dict[str, float]) -> str:

@@ -5,7 +5,8 @@ Both are frozen dataclasses; ``__post_init__`` validates and never mutates.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import math
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 _ACTIVATIONS = ("elu", "relu", "tanh")
@@ -262,3 +263,62 @@ class LearnerConfig:
             "cnn_channels",
         }
         return cls(**{k: (tuple(v) if k in tuples else v) for k, v in d.items()})
+
+
+#: LearnerConfig fields that ``tron1 train`` sets through an option of their own
+OWN_OPTIONS = {
+    "num_steps_per_env": "--steps-per-env",
+    "actor_hidden": "--hidden",
+    "critic_hidden": "--hidden",
+    "teacher_ratio": "--teacher-ratio",
+    "critic_weights": "--critic-weights",
+    "precision": "--precision",
+}
+_TRUE, _FALSE = ("true", "on", "yes", "1"), ("false", "off", "no", "0")
+
+
+def tunable_fields() -> dict[str, Any]:
+    """The scalar LearnerConfig fields ``tron1 train --learner`` may set, name -> default value."""
+    default = LearnerConfig()
+    return {
+        k: v
+        for k, v in asdict(default).items()
+        if k not in OWN_OPTIONS and (v is None or isinstance(v, (bool, int, float, str)))
+    }
+
+
+def with_overrides(cfg: LearnerConfig, values: dict[str, str]) -> LearnerConfig:
+    """``cfg`` with scalar fields replaced from text (``{"rec_batch_envs": "256"}``), each parsed as
+    the type of its default (``none`` for an optional number such as ``desired_kl``).
+
+    ValueError, one line, for an unknown or non-scalar field, a field with its own option, a value
+    that does not parse, or one the config refuses."""
+    tunable = tunable_fields()
+    parsed: dict[str, Any] = {}
+    for name, text in values.items():
+        if name in OWN_OPTIONS:
+            raise ValueError(f"{name} has its own option: {OWN_OPTIONS[name]}")
+        if name not in tunable:
+            known = ", ".join(tunable)
+            raise ValueError(f"unknown or non-scalar learner setting '{name}'; choose from {known}")
+        default, t = tunable[name], text.strip().lower()
+        try:
+            if name == "desired_kl" and t == "none":
+                parsed[name] = None
+            elif isinstance(default, bool):
+                if t not in _TRUE + _FALSE:
+                    raise ValueError
+                parsed[name] = t in _TRUE
+            elif isinstance(default, int):
+                parsed[name] = int(t)
+            elif isinstance(default, float) or default is None:
+                parsed[name] = float(t)
+            else:
+                parsed[name] = text.strip()
+        except ValueError:
+            kind = "true or false" if isinstance(default, bool) else "an integer"
+            kind = "a number" if isinstance(default, float) or default is None else kind
+            raise ValueError(f"{name}={text} is not {kind}") from None
+        if isinstance(parsed[name], float) and not math.isfinite(parsed[name]):
+            raise ValueError(f"{name}={text} is not a finite number")
+    return replace(cfg, **parsed)
