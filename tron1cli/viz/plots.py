@@ -92,7 +92,11 @@ def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20
         ax.grid(alpha=0.3)
     for ax in (a_s, a_e, a_l):
         ax.legend(fontsize=8)
-    names = " -> ".join(d.name for d in dirs)
+    names = (
+        " -> ".join(d.name for d in dirs)
+        if len(dirs) <= 3
+        else f"{len(dirs)} phases, {dirs[0].name} -> {dirs[-1].name}"
+    )
     fig.suptitle(f"{names}: {rows[-1]['env_steps'] / 1e6:.1f} M env steps")
     return _save(fig, out_png)
 
