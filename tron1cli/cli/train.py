@@ -277,10 +277,8 @@ def train(
     except ValueError as e:
         fail(str(e), 2)
     if "learner" in given:
-        from tron1cli.learn.config import with_overrides
-
         try:
-            cfg = replace(cfg, learner=with_overrides(cfg.learner, _settings(learner)))
+            cfg = replace(cfg, learner=replace(cfg.learner, **_learner_settings(learner)))
         except ValueError as e:
             fail(f"--learner: {e}", 2)
     n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
@@ -394,14 +392,10 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
         if not _given(ctx, name):
             continue
         if name == "learner":
-            from tron1cli.learn.config import LearnerConfig, with_overrides
-
             try:
-                pairs = _settings(ctx.params[name])
-                parsed = with_overrides(LearnerConfig(), pairs)
+                now = _learner_settings(ctx.params[name])
             except ValueError as e:
                 fail(f"--learner: {e}", 2)
-            now = {k: getattr(parsed, k) for k in pairs}
         else:
             now = _as_saved(name, ctx.params[name])
         if name == "teacher_ratio" and not isinstance(now, str):
@@ -425,16 +419,28 @@ def _value(v) -> str:
 
 
 def _settings(text: str) -> dict[str, str]:
-    """``A=1,B=off`` -> {A: "1", B: "off"}; ValueError on a pair without ``=``."""
+    """``A=1,B=off`` -> {A: "1", B: "off"} (empty text: {}); ValueError on a pair without one ``=``."""
     pairs = [kv.split("=") for kv in text.split(",") if kv.strip()]
-    if not pairs or any(len(kv) != 2 or not kv[0].strip() for kv in pairs):
+    if any(len(kv) != 2 for kv in pairs):
         raise ValueError(f"wants KEY=VALUE pairs separated by commas, got '{text}'")
     return {k.strip(): v.strip() for k, v in pairs}
 
 
 def _pairs(text: str) -> dict[str, float]:
     """``A=1,B=0.5`` -> {A: 1.0, B: 0.5}; ValueError on anything else."""
-    return {k.strip(): float(v) for k, v in (kv.split("=") for kv in text.split(",") if kv.strip())}
+    return {k: float(v) for k, v in _settings(text).items()}
+
+
+def _learner_settings(text: str) -> dict:
+    """``--learner``'s text -> {field: value parsed as its default's type}; ValueError, one line,
+    for anything :func:`tron1cli.learn.config.with_overrides` refuses or a text without pairs."""
+    from tron1cli.learn.config import LearnerConfig, with_overrides
+
+    pairs = _settings(text)
+    if not pairs or "" in pairs:
+        raise ValueError(f"wants KEY=VALUE pairs separated by commas, got '{text}'")
+    parsed = with_overrides(LearnerConfig(), pairs)
+    return {k: getattr(parsed, k) for k in pairs}
 
 
 def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:

@@ -230,8 +230,7 @@ class Trainer:
             self.cfg = cfg = replace(cfg, init_from=origin)
         if state is not None:
             self.learner.load_state_dict(state["learner"])
-            if "curriculum" in state and self.env.model.nhfield:  # the terrain levels reached
-                self.env.restore_curriculum({k: v.numpy() for k, v in state["curriculum"].items()})
+            self._restore_levels(state)
             self.iteration = int(state["iteration"])
             self.env_steps = int(state["env_steps"])
             self.wall_s = float(state.get("wall_s", 0.0))
@@ -244,13 +243,20 @@ class Trainer:
         """``--init``: start every env on the terrain level and tile it had in the source run, when
         that run trained on the same terrain bank (terrain, tile geometry, seed) with the same env
         count, so a new phase of a campaign does not climb the curriculum again from level 0."""
-        if "curriculum" not in source or not self.env.model.nhfield or not self.cfg.env.curriculum:
+        if not self.cfg.env.curriculum:
             return False
         mine = self.cfg.to_dict()["env"]
         theirs = json.loads(source["config"])["env"]
         if any(theirs.get(k) != mine[k] for k in ("terrain", "terrain_cfg", "num_envs", "seed")):
             return False
-        self.env.restore_curriculum({k: v.numpy() for k, v in source["curriculum"].items()})
+        return self._restore_levels(source)
+
+    def _restore_levels(self, ckpt: dict) -> bool:
+        """Put the envs on the terrain levels and tiles saved in checkpoint ``ckpt``, when it holds
+        them and this run has terrain; whether it did."""
+        if "curriculum" not in ckpt or not self.env.model.nhfield:
+            return False
+        self.env.restore_curriculum({k: v.numpy() for k, v in ckpt["curriculum"].items()})
         return True
 
     # -- persistence ------------------------------------------------------------------------
