@@ -290,7 +290,6 @@ def saved_run(tmp_path_factory) -> Path:
         (["--no-gait-prior"], "was started with --gait-prior"),
         (["--randomize"], "was started with --no-randomize"),
         (["--ablation", "single-critic"], "was started with --ablation none"),
-        (["--precision", "bf16"], "was started with --precision fp32"),
     ],
 )
 def test_resume_refuses_an_option_the_saved_run_fixes(saved_run, args, text):

@@ -259,6 +259,39 @@ def test_learner_settings_are_parsed_recorded_printed_and_kept_on_resume(tmp_pat
     assert saved["rec_batch_envs"] == 4 and saved["desired_kl"] is None
 
 
+def test_resume_takes_the_precision_given_now_like_the_threads(tmp_path):
+    """--precision is the machine's choice (bf16 pays with AMX, is emulated and slow on AVX2): a
+    resumed run computes in the precision given now, records it, and keeps the saved one otherwise."""
+    run = tmp_path / "r"
+    assert tron1("train", *SMALL, "--iterations", "1", "--run-dir", str(run)).returncode == 0
+    resume = ("train", "--resume", "--run-dir", str(run))
+    r = tron1(*resume, "--iterations", "2", "--precision", "bf16")
+    assert r.returncode == 0, r.stderr
+    assert "learner on cpu in bf16" in " ".join(r.stderr.split())
+    saved = json.loads(load_checkpoint(run / "checkpoints" / "latest.pt")["config"])["learner"]
+    assert saved["precision"] == "bf16"
+    r = tron1(*resume, "--iterations", "3")
+    assert r.returncode == 0 and "learner on cpu in bf16" in " ".join(r.stderr.split()), r.stderr
+    r = tron1(*resume, "--iterations", "4", "--precision", "fp8")
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "--precision must be one of fp32, bf16" in lines[0]
+
+
+def test_bf16_on_a_cpu_that_emulates_it_is_noted(monkeypatch, capsys):
+    from tron1cli.cli import common
+    from tron1cli.learn import perf
+
+    monkeypatch.setattr(perf, "cpu_has_fast_bf16", lambda: False)
+    assert common.resolve_precision("bf16", "cpu") == "bf16"
+    assert "bf16 is emulated here" in capsys.readouterr().err
+    for precision, device in (("fp32", "cpu"), ("bf16", "cuda")):
+        assert common.resolve_precision(precision, device) == precision
+        assert capsys.readouterr().err == ""
+    monkeypatch.setattr(perf, "cpu_has_fast_bf16", lambda: True)
+    common.resolve_precision("bf16", "cpu")
+    assert capsys.readouterr().err == ""
+
+
 def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
     """A new campaign phase (--init) starts on the levels its source reached when both runs train
     on the same terrain bank with the same env count; otherwise the curriculum starts at level 0."""

@@ -15,6 +15,7 @@ from tron1cli.cli.common import (
     out,
     print_json,
     resolve_device,
+    resolve_precision,
     terrain_help,
     threads_option,
 )
@@ -61,7 +62,9 @@ def bench(
         fail(str(e), 2)
     threads = threads or available_cores()
     if train:
-        _bench_train(envs, threads, seed, terrain, rounds, resolve_device(device), precision, json_out)
+        device = resolve_device(device)
+        precision = resolve_precision(precision, device)
+        _bench_train(envs, threads, seed, terrain, rounds, device, precision, json_out)
         return
     with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
         res = run_bench(

@@ -111,6 +111,24 @@ def resolve_device(name: str) -> str:
     return name
 
 
+def resolve_precision(name: str, device: str) -> str:
+    """``fp32`` or ``bf16`` (the update's arithmetic); exits 2 otherwise. bf16 on a CPU that would
+    emulate it is allowed, with a one-line note that fp32 is faster there."""
+    from tron1cli.learn.config import PRECISIONS
+
+    if name not in PRECISIONS:
+        fail(f"--precision must be one of {', '.join(PRECISIONS)}, got '{name}'", 2)
+    if name == "bf16" and device == "cpu":
+        from tron1cli.learn.perf import cpu_has_fast_bf16
+
+        if not cpu_has_fast_bf16():
+            err.print(
+                "note: this CPU has no native bfloat16 (AVX-512 or AMX): bf16 is emulated here and "
+                "several times slower than fp32; --precision fp32 is the faster choice"
+            )
+    return name
+
+
 _MUJOCO_SEEN: set[str] = set()
 
 

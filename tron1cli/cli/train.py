@@ -22,6 +22,7 @@ from tron1cli.cli.common import (
     out,
     rerun_file,
     resolve_device,
+    resolve_precision,
     terrain_help,
     threads_option,
 )
@@ -109,7 +110,8 @@ def train(
         "fp32",
         "--precision",
         help="The update's arithmetic: fp32, or bf16 (matrix products in bfloat16, float32 "
-        "accumulation: several times faster on CPUs with AMX and on recent GPUs).",
+        "accumulation: several times faster on CPUs with AMX and on recent GPUs, several times "
+        "slower on CPUs without native bfloat16); a resumed run takes the value given now.",
     ),
     perception: bool | None = typer.Option(
         None,
@@ -175,7 +177,7 @@ def train(
     if init is not None and resume:
         fail("--init starts a new run from other weights; --resume continues this one", 2)
     if resume:
-        _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every)
+        _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every, precision)
         return
     try:
         if preset is not None:
@@ -242,6 +244,7 @@ def train(
             fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
         randomization = skipped
     device = resolve_device(device)
+    precision = resolve_precision(precision, device)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
@@ -294,8 +297,11 @@ def train(
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=False)
 
 
-def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every) -> None:
-    """``--resume``: the saved run goes on as saved; an option that would change it is refused."""
+def _resume(
+    ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every, precision
+) -> None:
+    """``--resume``: the saved run goes on as saved; an option that would change it is refused
+    (the machine's settings excepted: threads, device and precision)."""
     from tron1cli.train.runner import Trainer, check_run_dir
     from tron1cli.viz.rerun_stream import parse_rerun_option
 
@@ -304,6 +310,8 @@ def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, reru
     except ValueError as e:
         fail(str(e), 2)
     device = resolve_device(device)
+    if _given(ctx, "precision"):
+        precision = resolve_precision(precision, device)
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
     _refuse_changed_options(ctx, run_dir)
@@ -317,6 +325,7 @@ def _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, reru
         device=device,
         threads=threads or available_cores(),
         save_every=save_every if _given(ctx, "save_every") else None,
+        precision=precision if _given(ctx, "precision") else None,
     )
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
 
@@ -343,7 +352,6 @@ def _saved_values(cfg) -> dict:
         "pushes": e.pushes.enabled,
         "ablation": cfg.ablation,
         "seed": e.seed,
-        "precision": lr.precision,
     }
 
 

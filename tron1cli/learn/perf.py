@@ -39,3 +39,17 @@ def tune_glibc_malloc(top_pad: int = 1 << 30, trim_threshold: int = 1 << 40) -> 
     ok &= mallopt(_M_TRIM_THRESHOLD, trim_threshold) == 1
     ok &= mallopt(_M_TOP_PAD, top_pad) == 1
     return bool(ok)
+
+
+def cpu_has_fast_bf16() -> bool:
+    """Whether this CPU computes bfloat16 matrix products natively (oneDNN's test: AVX-512 or AMX).
+
+    Without it torch emulates bf16 through float32 conversions: measured on a 2-core AVX2 machine,
+    one perceptive PPO update took 103 s in bf16 against 15 s in fp32.
+    """
+    import torch
+
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a torch without the probe: assume nothing
+        return False

@@ -163,6 +163,8 @@ class Trainer:
     threads: physics and torch threads of a resumed run (a new run takes ``cfg.env.nthread``).
     init: a checkpoint whose weights a new run starts from wherever the shapes agree
     (:mod:`tron1cli.learn.warm_start`). save_every: a resumed run's new checkpoint period.
+    precision: a resumed run's update arithmetic (``fp32`` or ``bf16``; None: as saved), a setting
+    of the machine like ``threads``: it changes no state, only how fast the update computes.
     """
 
     def __init__(
@@ -175,6 +177,7 @@ class Trainer:
         threads: int | None = None,
         init: Path | None = None,
         save_every: int | None = None,
+        precision: str | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -192,6 +195,8 @@ class Trainer:
                 cfg = replace(cfg, env=replace(cfg.env, nthread=threads))
             if save_every is not None:
                 cfg = replace(cfg, save_every=save_every)
+            if precision is not None:
+                cfg = replace(cfg, learner=replace(cfg.learner, precision=precision))
         elif cfg is None:
             raise UsageError("a new run needs a configuration")
         elif (self.ckpt_dir / "latest.pt").exists():
