@@ -185,9 +185,11 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
         "reconstruction_error_cm",
         "exposure_s",
         "command_progress",
+        "traverse_rate",
     ):
         assert set(m[key]) == {"mean", "std", "n"}
     assert m["success_rate"]["n"] == 2 and m["success_rate"]["std"] == 0.0  # same policy twice
+    assert m["traverse_rate"]["mean"] <= m["success_rate"]["mean"]  # a traverse is a success
     # survivors are exposed the whole window (20 x 0.02 s), fallers less
     window = rep["protocol"]["window_s"]
     assert window == pytest.approx(0.4)
@@ -290,8 +292,18 @@ def test_command_progress_hand_computed():
 
     cmd = np.array([[1.0, 0.0], [0.0, 0.5], [0.01, 0.0]])  # the last one is a standing command
     v = np.array([[0.5, 0.5], [0.0, -0.5], [3.0, 3.0]])
-    assert command_progress_terms(cmd, v) == pytest.approx((0.5 - 0.5, 1.5))
-    assert command_progress_terms(cmd[2:], v[2:]) == (0.0, 0.0)
+    along, asked = command_progress_terms(cmd, v)
+    np.testing.assert_allclose(along, [0.5, -0.5, 0.0])
+    np.testing.assert_allclose(asked, [1.0, 0.5, 0.0])
+
+
+def test_traverse_is_a_success_that_walked_half_its_commanded_distance():
+    from tron1cli.evaluation.protocol import traversed
+
+    success = np.array([True, True, True, False, True, True])
+    along = np.array([5.0, 2.4, 2.5, 5.0, 0.0, -1.0])  # m walked along the command
+    asked = np.array([5.0, 5.0, 5.0, 5.0, 0.4, 5.0])  # m commanded; env 4 was asked to stand
+    np.testing.assert_array_equal(traversed(success, along, asked), [True, False, True, False, True, False])
 
 
 def test_heading_frame_push_rotates_with_the_robot():
@@ -390,6 +402,7 @@ def test_full_window_at_1p25_mps_on_flat(tiny_ckpt):
     assert res.metrics["exposure_s"] == pytest.approx(10.0) and res.metrics["success_rate"] == 1.0
     assert not res.left.any() and not res.fell.any()
     assert res.metrics["command_progress"] == pytest.approx(1.0, abs=0.01)  # all it was asked
+    assert res.metrics["traverse_rate"] == 1.0
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

@@ -169,6 +169,7 @@ def eval_cmd(
                 "reconstruction_error_cm",
                 "exposure_s",
                 "command_progress",
+                "traverse_rate",
             )
         ),
     ),
@@ -203,7 +204,8 @@ def eval_cmd(
     angular_velocity_error: mean |w_x|, |w_y| (rad/s); velocity_tracking_error: |v_cmd,xy - v_xy|
     (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm);
     exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window);
-    command_progress: distance walked along the command over the distance commanded (ours).
+    command_progress: distance walked along the command over the distance commanded (ours);
+    traverse_rate: share of envs that succeeded and walked at least half their commanded distance.
     """
     from tron1cli.evaluation.protocol import (
         METRICS,
@@ -328,7 +330,8 @@ def eval_cmd(
         title="tron1 eval (Table I)",
         caption=f"{actor}s, level {level}, {envs} envs x {steps} steps, "
         f"randomisation {'on' if randomize else 'off'}, "
-        f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; success in %",
+        f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; "
+        "success and traverse in %",
     )
     table.add_column("method")
     table.add_column("metric")
@@ -336,7 +339,7 @@ def eval_cmd(
         table.add_column(t, justify="right")
     for label in loaded:
         for i, m in enumerate(shown):
-            cells = (_fmt(results[label][t][m], m == "success_rate") for t in terrains)
+            cells = (_fmt(results[label][t][m], m in ("success_rate", "traverse_rate")) for t in terrains)
             table.add_row(label if i == 0 else "", m, *cells, end_section=i == len(shown) - 1)
     out.print(table)
     for dim, values in plan.items():
