@@ -138,6 +138,51 @@ def test_curriculum_moves_up_and_down():
     assert (bank.level[cur.tile[moved]] == cur.level[moved]).all()
 
 
+def test_a_staggered_first_episode_moves_no_level_and_reports_its_true_length():
+    """After reset(stagger=True) (every start or resume of a training run) each env's first episode
+    begins at a random point of the clock, so a time-out cuts it short: it must not read as a slow
+    walker and demote its env; a full episode that walked nowhere is demoted as before."""
+    env = make(
+        "stairs",
+        n=8,
+        max_init_level=0,
+        perception=False,
+        randomization=RandomizationConfig(),
+        pushes=PushConfig(),
+    )
+    env.reset(stagger=True)
+    env.curriculum.level[:] = 3
+    env.curriculum.tile[:] = env.bank.tile_index(env.curriculum.kind, env.curriculum.level, np.zeros(8, int))
+    env.commands.set(np.arange(8), np.tile([0.5, 0.0, 0.0], (8, 1)))  # 10 m asked over 20 s
+    last = env.max_episode_steps - 1
+    env.episode_step[:] = last  # all time out at the next step
+    env._steps_since_reset[4:] = last  # envs 4-7 walked a whole episode (nowhere), 0-3 one step
+    env.physics.state[4:, 0] = last * env.policy_dt  # their sim clock agrees (else: "diverged")
+    res = env.step(np.zeros((8, 6)))
+    assert res.time_out.all()
+    np.testing.assert_array_equal(res.episode["staggered"], [True] * 4 + [False] * 4)
+    np.testing.assert_allclose(res.episode["length_s"], [0.02] * 4 + [20.0] * 4)
+    assert env.curriculum.level.tolist() == [3] * 4 + [2] * 4
+    env.close()
+
+
+def test_staggered_episodes_are_left_out_of_training_statistics():
+    from tron1cli.train.metrics import EpisodeStats
+
+    stats = EpisodeStats()
+    episode = {
+        "time_out": np.array([True, True, False, True]),
+        "length_s": np.array([0.5, 20.0, 3.0, 1.0]),
+        "staggered": np.array([True, False, False, True]),
+        "reward/alive": np.array([0.25, 10.0, 1.5, 0.5]),
+    }
+    stats.add_episodes(np.arange(4), episode, n_teacher=2)
+    out = stats.summary()
+    assert out["teacher/survival"] == 1.0 and out["teacher/episode_length_s"] == 20.0
+    assert out["student/survival"] == 0.0 and out["student/episode_length_s"] == 3.0
+    assert out["episode_reward/alive"] == pytest.approx(5.75) and stats.episodes == 4
+
+
 def test_held_depth_frames_and_scans_after_resets():
     """Observations keep their depth frames (renders replace the array, never write into it); a
     student that just reset holds a capture of its new pose, or an empty frame until the next

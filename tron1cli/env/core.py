@@ -39,8 +39,11 @@ class StepResult:
     obs: observation groups by name (see :class:`ObsLayout`), after resets.
     terminal_obs: the same groups before resets, for value bootstrapping of time-outs.
     rewards: reward per group (``stable``, ``loco``; one ``all`` group in the single-critic ablation).
-    episode: figures of the episodes that ended this step (one entry per done env): ``length_s``,
-        ``time_out``, and ``reward/<term>`` per-term sums.
+    episode: figures of the episodes that ended this step (one entry per done env): ``length_s``
+        (time walked since the reset), ``time_out``, ``staggered`` (the episode is the first after
+        ``reset(stagger=True)``: its clock started at a random point, so a time-out cut it short;
+        it moves no terrain level and is left out of training statistics), and ``reward/<term>``
+        per-term sums.
     """
 
     obs: dict[str, np.ndarray]
@@ -222,12 +225,18 @@ class Tron1Env:
         ids = np.flatnonzero(done)
         terminal_obs = self._observe(ids_reset=None, update_history=False) if len(ids) else {}
         scan_before = terminal_obs.get("heightmap")
-        episode = {"length_s": self.episode_step[ids] * self.policy_dt, "time_out": term.time_out[ids]}
+        episode = {
+            "length_s": self._steps_since_reset[ids] * self.policy_dt,
+            "time_out": term.time_out[ids],
+            "staggered": self.episode_step[ids] != self._steps_since_reset[ids],
+        }
         for name, sums in self.rewards.pop_episode_sums(ids).items():
             episode[f"reward/{name}"] = sums
         if len(ids):
-            commanded = np.linalg.norm(self.commands.value[ids, :2], axis=1) * episode["length_s"]
-            changed = self.curriculum.update(ids, np.linalg.norm(xy[ids], axis=1), commanded)
+            full = ~episode["staggered"]  # a cut-short first episode would read as a slow walker
+            judged = ids[full]
+            commanded = np.linalg.norm(self.commands.value[judged, :2], axis=1) * episode["length_s"][full]
+            changed = self.curriculum.update(judged, np.linalg.norm(xy[judged], axis=1), commanded)
             self._apply_tiles(changed)
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))

@@ -14,7 +14,8 @@ class EpisodeStats:
 
     survival: share of finished episodes that ended by time-out rather than by a fall or an
     unstable simulation; length_s: mean episode length (s). Reward-term sums are averaged over the
-    episodes that finished during the current iteration.
+    episodes that finished during the current iteration. The first episode of each env after a
+    staggered reset (cut short by its random start on the clock) is counted in ``episodes`` only.
     """
 
     def __init__(self, window: int = 1000) -> None:
@@ -29,13 +30,14 @@ class EpisodeStats:
         if len(ids) == 0:
             return
         self.episodes += len(ids)
+        full = ~episode["staggered"] if "staggered" in episode else np.ones(len(ids), dtype=bool)
         is_student = ids >= n_teacher
-        for g, mask in (("teacher", ~is_student), ("student", is_student)):
+        for g, mask in (("teacher", full & ~is_student), ("student", full & is_student)):
             self.outcomes[g].extend(episode["time_out"][mask].tolist())
             self.lengths[g].extend(episode["length_s"][mask].tolist())
         for k, v in episode.items():
-            if k.startswith("reward/"):
-                self._terms.setdefault(k, []).append(v)
+            if k.startswith("reward/") and full.any():
+                self._terms.setdefault(k, []).append(v[full])
 
     def add_tracking(self, err: np.ndarray, n_teacher: int) -> None:
         """Record one step's velocity tracking error (N,) in m/s."""
