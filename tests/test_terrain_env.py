@@ -166,23 +166,6 @@ def test_a_staggered_first_episode_moves_no_level_and_reports_its_true_length():
     env.close()
 
 
-def test_staggered_episodes_are_left_out_of_training_statistics():
-    from tron1cli.train.metrics import EpisodeStats
-
-    stats = EpisodeStats()
-    episode = {
-        "time_out": np.array([True, True, False, True]),
-        "length_s": np.array([0.5, 20.0, 3.0, 1.0]),
-        "staggered": np.array([True, False, False, True]),
-        "reward/alive": np.array([0.25, 10.0, 1.5, 0.5]),
-    }
-    stats.add_episodes(np.arange(4), episode, n_teacher=2)
-    out = stats.summary()
-    assert out["teacher/survival"] == 1.0 and out["teacher/episode_length_s"] == 20.0
-    assert out["student/survival"] == 0.0 and out["student/episode_length_s"] == 3.0
-    assert out["episode_reward/alive"] == pytest.approx(5.75) and stats.episodes == 4
-
-
 def test_held_depth_frames_and_scans_after_resets():
     """Observations keep their depth frames (renders replace the array, never write into it); a
     student that just reset holds a capture of its new pose, or an empty frame until the next

@@ -34,6 +34,9 @@ def test_two_iterations_write_a_loadable_checkpoint_and_resume(tmp_path):
     # resume continues the iteration count to the new total
     r = tron1("train", "--resume", "--iterations", "3", "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
+    # stderr is a pipe, not a terminal: plain progress lines (the first and the last iteration)
+    lines = [x for x in r.stderr.splitlines() if x.startswith("iter ")]
+    assert [x.split()[1] for x in lines] == ["3/3"] and "env steps)" in lines[0], r.stderr
     assert [x["iteration"] for x in metrics(run)] == [1, 2, 3]
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == 3
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import signal
+import time
 from dataclasses import replace
 from pathlib import Path
 from types import MappingProxyType
@@ -465,8 +466,13 @@ def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:
     return weights
 
 
+#: seconds between the plain progress lines written when stderr is not a terminal (a log file)
+LOG_EVERY_S = 60.0
+
+
 def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) -> None:
-    """Train, print the header, the progress line and the closing table."""
+    """Train, print the header, the progress bar (a plain line a minute when stderr is not a
+    terminal: a run under nohup or in CI) and the closing table."""
     from tron1cli.viz.rerun_stream import open_stream
 
     c = trainer.cfg
@@ -498,8 +504,11 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         TextColumn("{task.fields[figures]}"),
         TimeElapsedColumn(),
         console=err,
+        disable=not err.is_terminal,  # a log file gets the plain lines of show() instead
     )
     task = progress.add_task("train", total=c.iterations, completed=trainer.iteration, figures="")
+
+    logged = {"at": -math.inf}  # a log file gets no live bar: a plain line a minute instead
 
     def show(m: dict) -> None:
         reward = sum(v for k, v in m.items() if k.startswith("step_reward/"))
@@ -510,6 +519,14 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         if "terrain/mean_level" in m:
             figs += f" lvl {_fmt(m['terrain/mean_level'])}"
         progress.update(task, completed=m["iteration"], figures=figs)
+        now = time.monotonic()
+        if not err.is_terminal and (now - logged["at"] >= LOG_EVERY_S or m["iteration"] >= c.iterations):
+            logged["at"] = now
+            err.print(
+                f"iter {int(m['iteration'])}/{c.iterations} {figs} (collect {m['collect_s']:.1f} s, "
+                f"learn {m['learn_s']:.1f} s, {m['wall_s'] / 60:.1f} min, {m['env_steps']:,} env steps)",
+                soft_wrap=True,
+            )
 
     def _terminate(signum, frame):  # `kill` (SIGTERM) saves like Ctrl-C does
         raise KeyboardInterrupt

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+import torch
 
 GROUPS = ("teacher", "student")
 
@@ -38,6 +39,23 @@ class EpisodeStats:
         for k, v in episode.items():
             if k.startswith("reward/") and full.any():
                 self._terms.setdefault(k, []).append(v[full])
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The rolling windows as tensors, so that a resumed run's survival and episode length go
+        on from the episodes before it instead of from its first (short, falling) ones."""
+        out = {}
+        for g in GROUPS:
+            out[f"{g}/outcomes"] = torch.tensor(list(self.outcomes[g]), dtype=torch.bool)
+            out[f"{g}/lengths"] = torch.tensor(list(self.lengths[g]), dtype=torch.float64)
+        return out
+
+    def load_state_dict(self, sd: dict[str, torch.Tensor]) -> None:
+        """Refill the rolling windows from :meth:`state_dict` (the newest ``window`` entries)."""
+        for g in GROUPS:
+            self.outcomes[g].clear()
+            self.outcomes[g].extend(sd[f"{g}/outcomes"].tolist())
+            self.lengths[g].clear()
+            self.lengths[g].extend(sd[f"{g}/lengths"].tolist())
 
     def add_tracking(self, err: np.ndarray, n_teacher: int) -> None:
         """Record one step's velocity tracking error (N,) in m/s."""

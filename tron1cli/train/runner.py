@@ -243,6 +243,8 @@ class Trainer:
         #: the iteration of the checkpoint on disk (None before the first save)
         self.saved_iteration: int | None = self.iteration if state is not None else None
         self.stats = EpisodeStats()
+        if state is not None and "episode_stats" in state:  # older checkpoints: start empty
+            self.stats.load_state_dict(state["episode_stats"])
 
     def _carry_levels(self, source: dict) -> bool:
         """``--init``: start every env on the terrain level and tile it had in the source run, when
@@ -329,6 +331,7 @@ class Trainer:
             "wall_s": self.wall_s,
             "obs_layout": json.dumps(self.env.layout.to_dict()),
             "curriculum": {k: torch.from_numpy(v) for k, v in self.env.curriculum_state().items()},
+            "episode_stats": self.stats.state_dict(),
         }
         latest = self.ckpt_dir / "latest.pt"
         save_checkpoint(latest, payload)
