@@ -31,7 +31,7 @@ class EpisodeStats:
         if len(ids) == 0:
             return
         self.episodes += len(ids)
-        full = ~episode["staggered"] if "staggered" in episode else np.ones(len(ids), dtype=bool)
+        full = ~episode["staggered"]
         is_student = ids >= n_teacher
         for g, mask in (("teacher", full & ~is_student), ("student", full & is_student)):
             self.outcomes[g].extend(episode["time_out"][mask].tolist())
