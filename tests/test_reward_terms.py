@@ -197,3 +197,14 @@ def test_all_terms_return_batch_shape() -> None:
     for out in outs:
         assert out.shape == (n,)
         assert out.dtype == np.float64
+
+
+def test_flat_orientation_is_the_squared_sine_of_the_tilt() -> None:
+    pitch, roll = math.radians(11.0), math.radians(-4.0)
+    # gravity in the base frame: a base pitched nose-up by 11 deg, one rolled by -4 deg, one upright
+    g = _v(
+        (-math.sin(pitch), 0.0, -math.cos(pitch)),
+        (0.0, math.sin(roll), -math.cos(roll)),
+        (0.0, 0.0, -1.0),
+    )
+    np.testing.assert_allclose(rt.flat_orientation_sq(g), [math.sin(pitch) ** 2, math.sin(roll) ** 2, 0.0])

@@ -74,6 +74,14 @@ def lin_vel_z_sq(v_z: np.ndarray) -> np.ndarray:
     return _f64(v_z) ** 2
 
 
+def flat_orientation_sq(gravity_b: np.ndarray) -> np.ndarray:
+    """Base tilt penalty ``g_x^2 + g_y^2`` (sin^2 of the tilt angle), ``gravity_b`` (N, 3) the unit
+    gravity direction in the base frame (0 upright; not in the paper's Table II, whose orientation
+    row is commented out)."""
+    g = _f64(gravity_b)
+    return g[:, 0] ** 2 + g[:, 1] ** 2
+
+
 def joint_acc_sq(qdd: np.ndarray) -> np.ndarray:
     """Joint acceleration penalty ``sum_j qdd_j^2`` in (rad/s^2)^2, ``qdd`` (N, J)."""
     return np.sum(_f64(qdd) ** 2, axis=-1)

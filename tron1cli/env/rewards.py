@@ -237,6 +237,7 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     "track_lin_l2": lambda env: rt.track_lin_vel_l2(_v_cmd(env), _v_xy(env), env.reward_cfg.l2_alpha),
     "track_yaw": lambda env: rt.track_yaw_rate(env.commands.value[:, 2], env.state.base_ang_vel_b[:, 2]),
     "lin_vel_z": lambda env: rt.lin_vel_z_sq(env.state.base_lin_vel_b[:, 2]),
+    "flat_orientation": lambda env: rt.flat_orientation_sq(env.state.projected_gravity),
     "joint_acc": lambda env: rt.joint_acc_sq(env.state.joint_acc),
     "joint_power": lambda env: rt.joint_power(env.state.joint_torque, env.state.joint_vel),
     "torque": lambda env: rt.torque_sq(env.state.joint_torque),
