@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -185,6 +186,7 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
         "reconstruction_error_cm",
         "exposure_s",
         "command_progress",
+        "pitch_deg",
         "traverse_rate",
     ):
         assert set(m[key]) == {"mean", "std", "n"}
@@ -297,6 +299,14 @@ def test_command_progress_hand_computed():
     np.testing.assert_allclose(asked, [1.0, 0.5, 0.0])
 
 
+def test_pitch_is_signed_nose_down_positive():
+    from tron1cli.evaluation.protocol import pitch_deg
+
+    a = math.radians(11.0)
+    g = np.array([[-math.sin(a), 0.0, -math.cos(a)], [math.sin(a), 0.0, -math.cos(a)], [0.0, 0.3, -0.95]])
+    np.testing.assert_allclose(pitch_deg(g), [-11.0, 11.0, 0.0], atol=1e-9)
+
+
 def test_traverse_is_a_success_that_walked_half_its_commanded_distance():
     from tron1cli.evaluation.protocol import traversed
 
@@ -403,6 +413,7 @@ def test_full_window_at_1p25_mps_on_flat(tiny_ckpt):
     assert not res.left.any() and not res.fell.any()
     assert res.metrics["command_progress"] == pytest.approx(1.0, abs=0.01)  # all it was asked
     assert res.metrics["traverse_rate"] == 1.0
+    assert res.metrics["pitch_deg"] == pytest.approx(0.0, abs=0.5)  # carried upright
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

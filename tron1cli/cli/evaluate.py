@@ -169,6 +169,7 @@ def eval_cmd(
                 "reconstruction_error_cm",
                 "exposure_s",
                 "command_progress",
+                "pitch_deg",
                 "traverse_rate",
             )
         ),
@@ -205,7 +206,8 @@ def eval_cmd(
     (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm);
     exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window);
     command_progress: distance walked along the command over the distance commanded (ours);
-    traverse_rate: share of envs that succeeded and walked at least half their commanded distance.
+    pitch_deg: mean signed base pitch (degrees, + nose down); traverse_rate: share of envs that
+    succeeded and walked at least half their commanded distance.
     """
     from tron1cli.evaluation.protocol import (
         METRICS,

@@ -26,6 +26,8 @@ Metrics (Table I), averaged over the steps of envs still walking:
   frame, steps of walking envs with a moving command). Success is survival, as in the paper, so a
   robot that stands still in front of a staircase succeeds; this says how much of the commanded
   walking it did (1: all of it; 0: none; None without a moving command).
+- ``pitch_deg`` (ours): mean signed base pitch, ``atan2(g_x, -g_z)`` in degrees, positive nose
+  down; the orientation error's direction (a policy that walks leaning back reads negative);
 - ``traverse_rate`` (ours, 0-1): share of envs that succeeded *and* walked at least
   :data:`TRAVERSE_SHARE` of the distance commanded to them along their command (the curriculum's
   promotion rule); an env asked for less than :data:`TRAVERSE_MIN_ASKED_M` in the whole window
@@ -56,6 +58,7 @@ METRICS = (
     "reconstruction_error_cm",
     "exposure_s",
     "command_progress",
+    "pitch_deg",
     "traverse_rate",
 )
 #: a traverse: a success that walked at least this share of its commanded distance
@@ -236,6 +239,11 @@ def frame_errors(
     return orient, ang, track
 
 
+def pitch_deg(gravity_b: np.ndarray) -> np.ndarray:
+    """Signed base pitch (k,) in degrees, positive nose down, of base-frame gravity directions (k, 3)."""
+    return np.degrees(np.arctan2(gravity_b[:, 0], -gravity_b[:, 2]))
+
+
 def command_progress_terms(
     v_cmd_xy: np.ndarray, v_xy: np.ndarray, min_cmd: float = 0.05
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -309,6 +317,7 @@ def run_batch(
         sums = dict.fromkeys(METRICS[1:4], 0.0)
         count = 0
         rec_sum, rec_count = 0.0, 0
+        pitch_sum = 0.0
         along = np.zeros(n)  # per env: distance walked along the command, distance commanded (m)
         asked = np.zeros(n)
         for t in range(spec.steps):
@@ -342,6 +351,7 @@ def run_batch(
             )
             for key, e in zip(METRICS[1:4], errs, strict=True):
                 sums[key] += float(e.sum())
+            pitch_sum += float(pitch_deg(s.projected_gravity[ok]).sum())
             a, c = command_progress_terms(env.commands.value[ok, :2], s.base_lin_vel_b[ok, :2])
             along[ok] += a * env.policy_dt
             asked[ok] += c * env.policy_dt
@@ -360,6 +370,7 @@ def run_batch(
         metrics["exposure_s"] = float(exposure.mean())
         total_asked = float(asked.sum())
         metrics["command_progress"] = float(along.sum()) / total_asked if total_asked > 0.0 else None
+        metrics["pitch_deg"] = pitch_sum / count if count else None
         metrics["traverse_rate"] = float(traversed(~(fell | left), along, asked).mean())
         return EvalResult(
             metrics,
