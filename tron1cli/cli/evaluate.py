@@ -26,6 +26,7 @@ from tron1cli.cli.common import (
     rerun_file,
     terrain_help,
 )
+from tron1cli.evaluation.metric_names import METRICS, PERCENT_METRICS
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -159,20 +160,7 @@ def eval_cmd(
     metrics: str = typer.Option(
         "",
         "--metrics",
-        help="Metrics to show (default all): "
-        + ", ".join(
-            (
-                "success_rate",
-                "orientation_error",
-                "angular_velocity_error",
-                "velocity_tracking_error",
-                "reconstruction_error_cm",
-                "exposure_s",
-                "command_progress",
-                "pitch_deg",
-                "traverse_rate",
-            )
-        ),
+        help="Metrics to show (default all): " + ", ".join(METRICS),
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the eval envs."),
     actor: str = typer.Option(
@@ -210,7 +198,6 @@ def eval_cmd(
     succeeded and walked at least half their commanded distance.
     """
     from tron1cli.evaluation.protocol import (
-        METRICS,
         SPEED_DIMS,
         EvalSpec,
         aggregate,
@@ -341,7 +328,7 @@ def eval_cmd(
         table.add_column(t, justify="right")
     for label in loaded:
         for i, m in enumerate(shown):
-            cells = (_fmt(results[label][t][m], m in ("success_rate", "traverse_rate")) for t in terrains)
+            cells = (_fmt(results[label][t][m], m in PERCENT_METRICS) for t in terrains)
             table.add_row(label if i == 0 else "", m, *cells, end_section=i == len(shown) - 1)
     out.print(table)
     for dim, values in plan.items():

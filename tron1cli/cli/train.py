@@ -311,8 +311,7 @@ def _resume(
     except ValueError as e:
         fail(str(e), 2)
     device = resolve_device(device)
-    if _given(ctx, "precision"):
-        precision = resolve_precision(precision, device)
+    precision = resolve_precision(precision, device) if _given(ctx, "precision") else None  # None: as saved
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
     _refuse_changed_options(ctx, run_dir)
@@ -326,7 +325,7 @@ def _resume(
         device=device,
         threads=threads or available_cores(),
         save_every=save_every if _given(ctx, "save_every") else None,
-        precision=precision if _given(ctx, "precision") else None,
+        precision=precision,
     )
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
 
@@ -508,7 +507,7 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
     )
     task = progress.add_task("train", total=c.iterations, completed=trainer.iteration, figures="")
 
-    logged = {"at": -math.inf}  # a log file gets no live bar: a plain line a minute instead
+    logged = {"at": -math.inf}  # when the last plain line was written (time.monotonic)
 
     def show(m: dict) -> None:
         reward = sum(v for k, v in m.items() if k.startswith("step_reward/"))

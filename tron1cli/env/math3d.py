@@ -27,6 +27,13 @@ def yaw_of(q: np.ndarray) -> np.ndarray:
     return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
+def roll_pitch(gravity_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (N,) in rad (ZYX Euler; pitch positive nose down) from the unit gravity
+    direction in the base frame (N, 3)."""
+    g = gravity_b
+    return np.arctan2(-g[:, 1], -g[:, 2]), np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
+
+
 def quat_from_euler(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Unit quaternions (N, 4) from intrinsic z-y-x (yaw, pitch, roll) angles in rad."""
     cr, sr = np.cos(roll / 2), np.sin(roll / 2)

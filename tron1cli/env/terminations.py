@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tron1cli.config.env import TerminationConfig
+from tron1cli.env.math3d import roll_pitch
 
 
 @dataclass
@@ -27,9 +28,7 @@ class Terminations:
 
 def tilt_exceeded(projected_gravity: np.ndarray, max_roll: float, max_pitch: float) -> np.ndarray:
     """Whether roll or pitch exceeds its limit, from the gravity direction in the base frame (N, 3)."""
-    g = projected_gravity
-    roll = np.arctan2(-g[:, 1], -g[:, 2])
-    pitch = np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
+    roll, pitch = roll_pitch(projected_gravity)
     return (np.abs(roll) > max_roll) | (np.abs(pitch) > max_pitch)
 
 

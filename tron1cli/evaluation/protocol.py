@@ -26,8 +26,8 @@ Metrics (Table I), averaged over the steps of envs still walking:
   frame, steps of walking envs with a moving command). Success is survival, as in the paper, so a
   robot that stands still in front of a staircase succeeds; this says how much of the commanded
   walking it did (1: all of it; 0: none; None without a moving command).
-- ``pitch_deg`` (ours): mean signed base pitch, ``atan2(g_x, -g_z)`` in degrees, positive nose
-  down; the orientation error's direction (a policy that walks leaning back reads negative);
+- ``pitch_deg`` (ours): mean signed base pitch (ZYX Euler, as the tilt termination) in degrees,
+  positive nose down; the orientation error's direction (a policy that walks leaning back reads negative);
 - ``traverse_rate`` (ours, 0-1): share of envs that succeeded *and* walked at least
   :data:`TRAVERSE_SHARE` of the distance commanded to them along their command (the curriculum's
   promotion rule); an env asked for less than :data:`TRAVERSE_MIN_ASKED_M` in the whole window
@@ -45,22 +45,13 @@ import numpy as np
 
 from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
+from tron1cli.env.math3d import roll_pitch
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
+from tron1cli.evaluation.metric_names import METRICS
 from tron1cli.policy.contract import check_matches_env
 from tron1cli.policy.runtime import Policy
 
-METRICS = (
-    "success_rate",
-    "orientation_error",
-    "angular_velocity_error",
-    "velocity_tracking_error",
-    "reconstruction_error_cm",
-    "exposure_s",
-    "command_progress",
-    "pitch_deg",
-    "traverse_rate",
-)
 #: a traverse: a success that walked at least this share of its commanded distance
 TRAVERSE_SHARE = 0.5
 #: an env commanded less than this distance (m) in its window is judged by success alone
@@ -240,8 +231,9 @@ def frame_errors(
 
 
 def pitch_deg(gravity_b: np.ndarray) -> np.ndarray:
-    """Signed base pitch (k,) in degrees, positive nose down, of base-frame gravity directions (k, 3)."""
-    return np.degrees(np.arctan2(gravity_b[:, 0], -gravity_b[:, 2]))
+    """Signed base pitch (k,) in degrees, positive nose down, of base-frame gravity directions (k, 3):
+    the pitch the tilt termination checks (:func:`tron1cli.env.math3d.roll_pitch`)."""
+    return np.degrees(roll_pitch(gravity_b)[1])
 
 
 def command_progress_terms(
