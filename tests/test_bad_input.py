@@ -246,6 +246,12 @@ def test_one_line_not_a_traceback(tiny_ckpt, tmp_path, args, code, text):
     one_error_line(tron1(*(a.format(**fmt) for a in args)), code, text)
 
 
+def test_deploy_robot_refuses_a_gait_frequency_before_connecting(onnx_file):
+    one_error_line(
+        tron1("deploy-robot", str(onnx_file), "--gait-freq", "2.6"), 2, "outside the trained range"
+    )
+
+
 @pytest.mark.parametrize(
     "fields,text",
     [

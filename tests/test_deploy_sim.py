@@ -152,6 +152,18 @@ def test_gait_clock_and_command_schedule(tiny_ckpt, tmp_path, no_falls):
     np.testing.assert_allclose(cmds[50], [0.6, 0.1, 0.4])
 
 
+def test_gait_frequency_can_be_set(tiny_ckpt, no_falls):
+    """--gait-freq holds the clock at the asked frequency for the whole run."""
+    sim = DeploySim(load_policy(tiny_ckpt), DeployConfig(duration_s=0.2, gait_freq_hz=2.5))
+    try:
+        rep = sim.run()
+        phase = sim.env.commands.gait_phase[0]
+    finally:
+        sim.close()
+    assert rep["gait_freq_hz"] == 2.5
+    assert min(abs(phase - 0.5), 1.0 - abs(phase - 0.5)) < 1e-9  # 10 steps x 0.02 s x 2.5 Hz
+
+
 def test_realtime_paces_to_the_wall_clock(tiny_ckpt, no_falls):
     sim = DeploySim(load_policy(tiny_ckpt), DeployConfig(duration_s=0.5, realtime=True))
     try:
@@ -209,6 +221,8 @@ def test_bad_policy_file_exits_1_with_one_line(make, text, vision_onnx, tmp_path
         (["--level", "99"], "outside 0..9"),
         (["--physics-hz", "333"], "whole multiple"),
         (["--duration", "0"], "--duration"),
+        (["--gait-freq", "3"], "--gait-freq: gait frequency 3 Hz lies outside the trained range 1.5-2.5 Hz"),
+        (["--gait-freq", "nan"], "not a finite number"),
     ],
 )
 def test_bad_option_exits_2(args, text, tiny_ckpt, monkeypatch, capsys):

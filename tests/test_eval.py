@@ -237,6 +237,7 @@ def test_push_test_cli_json(tiny_ckpt, tmp_path):
         ),
         (["eval", "{ckpt}", "--speeds", "1.25"], 2, "outside the policy's training command range [-1, 1]"),
         (["push-test", "{ckpt}", "--envs", "3"], 2, "greater than or equal to 14"),
+        (["eval", "{ckpt}", "--gait-freq", "1"], 2, "--gait-freq: gait frequency 1 Hz lies outside"),
     ],
 )
 def test_bad_input_one_line(tiny_ckpt, args, code, text):
@@ -353,6 +354,22 @@ def test_sweep_command_per_dimension_and_range_check(tiny_ckpt):
         np.testing.assert_array_equal(env.commands.value, [[0.0, 0.4, 0.0]] * 3)
     finally:
         env.close()
+
+
+def test_a_fixed_gait_frequency_holds_for_every_env(tiny_ckpt):
+    """--gait-freq: every env's clock runs at the asked frequency; without it, drawn per command."""
+    pol = load_policy(tiny_ckpt)
+    for asked in (2.5, None):
+        env = make_env(pol, EvalSpec("flat", num_envs=16, steps=5, gait_freq_hz=asked))
+        try:
+            env.reset()
+            freq = env.commands.gait_freq.copy()
+        finally:
+            env.close()
+        if asked is None:
+            assert freq.min() >= 1.5 and freq.max() <= 2.5 and freq.std() > 0.1
+        else:
+            np.testing.assert_array_equal(freq, 2.5)
 
 
 def test_eval_tile_hand_computed():

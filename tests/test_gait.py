@@ -21,6 +21,19 @@ def test_desired_contact_by_hand():
     np.testing.assert_allclose(c[3], 0.5, atol=1e-6)
 
 
+def test_a_fixed_gait_frequency_stays_in_the_trained_range():
+    g = GaitConfig()  # 1.5-2.5 Hz
+    assert g.fixed(2.5).freq_hz == (2.5, 2.5) and g.fixed(1.5).freq_hz == (1.5, 1.5)
+    assert g.deployed_hz() == 2.0 and g.deployed_hz(2.25) == 2.25
+    for bad in (1.0, 2.51, float("nan")):
+        with pytest.raises(ValueError, match="outside the trained range 1.5-2.5 Hz"):
+            g.fixed(bad)
+    off = GaitConfig(enabled=False)
+    assert off.deployed_hz() == 0.0  # no clock is read
+    with pytest.raises(ValueError, match="without the gait prior"):
+        off.deployed_hz(2.0)
+
+
 def test_legs_are_half_a_period_apart():
     phase = np.arange(100) / 100.0
     lp = leg_phases(phase, 0.5)

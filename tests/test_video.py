@@ -11,7 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tron1cli.viz.video import check_video_path, gl_backends, parse_size
+from tron1cli.viz.video import (
+    check_video_path,
+    frame_strip,
+    gl_backends,
+    parse_size,
+    strip_indices,
+    strip_path,
+)
 
 SHIPPED = Path(__file__).resolve().parents[1] / "policies" / "tron1_flat.onnx"
 
@@ -60,6 +67,28 @@ def test_deploy_sim_video(tmp_path):
     diffs = [float(np.abs(frames[k].astype(int) - frames[0]).mean()) for k in (10, 20, 29)]
     assert all(d > 1.0 for d in diffs), diffs  # the robot walks, the camera follows, the clock runs
     assert frames[15].std() > 20  # not a blank image: terrain, sky and robot
+    from PIL import Image
+
+    strip = np.asarray(Image.open(strip_path(out)))  # five frames, 0 to 29, at full size
+    assert strip.shape == (240, 5 * 320, 3) and f"strip {tmp_path / 'walk.png'}" in r.stderr
+    for j, k in enumerate(strip_indices(30)):  # each tile is its video frame (up to H.264's loss)
+        assert np.abs(strip[:, j * 320 : (j + 1) * 320].astype(int) - frames[k]).mean() < 6.0
+
+
+def test_strip_frames_and_layout():
+    """First and last frame always in; a row per segment; scaled down, never up, to the width."""
+    assert strip_indices(30) == [0, 7, 14, 22, 29]
+    assert strip_indices(3) == [0, 1, 2] and strip_indices(1) == [0] and strip_indices(0) == []
+    a = [np.full((40, 60, 3), v, np.uint8) for v in (10, 20, 30)]
+    out = frame_strip([a, a[:2]], max_width=1000)  # 3 x 60 px fits: no scaling
+    assert out.shape == (80, 180, 3)
+    assert out[0, 0, 0] == 10 and out[0, 179, 0] == 30 and out[79, 61, 0] == 20
+    assert (out[40:, 120:] == 255).all()  # the short row is padded white
+    small = frame_strip([a], max_width=90)  # scaled by 0.5
+    assert small.shape == (20, 90, 3) and small[10, 45, 0] == 20
+    with pytest.raises(ValueError):
+        frame_strip([[]])
+    assert strip_path(Path("out/walk.mp4")) == Path("out/walk.png")
 
 
 def test_missing_backend_is_one_line(tmp_path):

@@ -166,7 +166,11 @@ def finite(value: float | None) -> float | None:
     return value
 
 
-VIDEO_HELP = "Record an MP4 video (30 fps, real time) to this file: "
+GAIT_FREQ_HELP = (
+    "Hold the gait clock at this frequency (Hz, within the policy's trained range, 1.5-2.5 for ours) "
+    "[default: the middle of that range]."
+)
+VIDEO_HELP = "Record an MP4 video (30 fps, real time; a PNG strip of 5 frames goes beside it) to this file: "
 VIDEO_SIZE_HELP = "Video frame size WIDTHxHEIGHT (even numbers)"
 
 
@@ -198,7 +202,8 @@ def render_video(recorder) -> None:
     except VideoError as e:
         fail(str(e), 1)
     err.print(
-        f"video: {st['path']} ({st['frames']} frames, {st['width']}x{st['height']}, {st['fps']} fps; "
+        f"video: {st['path']}, strip {st['strip']} "
+        f"({st['frames']} frames, {st['width']}x{st['height']}, {st['fps']} fps; "
         f"MUJOCO_GL={st['backend']}: {st['render_ms_per_frame']:.0f} ms a frame to render, "
         f"{st['encode_ms_per_frame']:.1f} ms to encode)",
         highlight=False,

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import err, fail, finite, note, out, print_json, terrain_help
+from tron1cli.cli.common import GAIT_FREQ_HELP, err, fail, finite, note, out, print_json, terrain_help
 from tron1cli.errors import UsageError
 
 EXIT = {"duration": 0, "interrupted": 130}  # every other end (a safety trip) exits 1
@@ -40,6 +40,7 @@ def deploy_robot(
         "(frames from sim-robot --depth-to, port 47017 by default).",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
+    gait_freq: float | None = typer.Option(None, "--gait-freq", callback=finite, help=GAIT_FREQ_HELP),
 ) -> None:
     """Run POLICY on a TRON1 through LimX's SDK: 50 Hz, the observation of its contract, joints mapped
     by motor name; a ramp to the default pose first; damping (Kp 0) when state or IMU stop for more
@@ -65,6 +66,10 @@ def deploy_robot(
     if policy.suffix != ".onnx":
         fail(f"deploy-robot runs exported policies (.onnx); export {policy} with tron1 export-onnx", 2)
     pol = load_policy(policy)
+    try:  # before connecting: a frequency the policy cannot run is a usage error
+        pol.run_cfg.env.gait.deployed_hz(gait_freq)
+    except ValueError as e:
+        fail(f"--gait-freq: {e}", 2)
     cfg = RobotConfig(
         ip=ip,
         schedule=schedule,
@@ -73,6 +78,7 @@ def deploy_robot(
         ramp_s=ramp,
         max_tilt_rad=max_tilt,
         watchdog_s=watchdog_ms / 1e3,
+        gait_freq_hz=gait_freq,
     )
     source = None
     if depth != "none" and pol.depth_hw is None:

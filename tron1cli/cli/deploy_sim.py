@@ -9,6 +9,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from tron1cli.cli.common import (
+    GAIT_FREQ_HELP,
     SEED_MAX,
     VIDEO_HELP,
     VIDEO_SIZE_HELP,
@@ -81,6 +82,7 @@ def deploy_sim(
     video_size: str | None = typer.Option(
         None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
     ),
+    gait_freq: float | None = typer.Option(None, "--gait-freq", callback=finite, help=GAIT_FREQ_HELP),
 ) -> None:
     """Run POLICY in MuJoCo: physics with PD at the physics rate, the policy at 50 Hz, the depth camera
     rendered in its own thread at 30 Hz with the newest ready frame handed to the policy.
@@ -125,6 +127,7 @@ def deploy_sim(
         physics_hz=physics_hz,
         randomize=randomize,
         viewer=viewer,
+        gait_freq_hz=gait_freq,
     )
     pol = load_policy(policy)
     stream = open_stream(target, recording_name=f"tron1 deploy-sim {policy.name}")

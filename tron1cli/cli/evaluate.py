@@ -19,6 +19,7 @@ from tron1cli.cli.common import (
     check_outputs,
     err,
     fail,
+    finite,
     open_video,
     out,
     print_json,
@@ -184,6 +185,13 @@ def eval_cmd(
     video_size: str | None = typer.Option(
         None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
     ),
+    gait_freq: float | None = typer.Option(
+        None,
+        "--gait-freq",
+        callback=finite,
+        help="Hold the gait clock at this frequency (Hz, within every policy's trained range) "
+        "[default: drawn with each command, as in training].",
+    ),
 ) -> None:
     """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
 
@@ -236,6 +244,12 @@ def eval_cmd(
                         check_speed(p.run_cfg.env.commands, dim, v)
     except ValueError as e:
         fail(f"--speeds: {e} ({p.path})", 2)
+    try:  # so must a fixed gait frequency
+        for pols in loaded.values():
+            for p in pols:
+                p.run_cfg.env.gait.deployed_hz(gait_freq)
+    except ValueError as e:
+        fail(f"--gait-freq: {e} ({p.path})", 2)
     n_pol = sum(len(v) for v in loaded.values())
     n_speeds = sum(len(v) for v in plan.values())
     total = n_pol * steps * len(terrains) * (1 + n_speeds)
@@ -249,7 +263,7 @@ def eval_cmd(
                 for t in terrains:
                     runs = []
                     for k, p in enumerate(pols):
-                        spec = EvalSpec(t, level, envs, steps, randomize, seed=seed)
+                        spec = EvalSpec(t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq)
                         take = None
                         if recorder is not None and k == 0:
                             lv = "hardest level" if level == -1 else f"level {level}"
@@ -266,7 +280,17 @@ def eval_cmd(
                             sr = [
                                 run_batch(
                                     p,
-                                    EvalSpec(t, level, envs, steps, randomize, v, seed, speed_dim=dim),
+                                    EvalSpec(
+                                        t,
+                                        level,
+                                        envs,
+                                        steps,
+                                        randomize,
+                                        v,
+                                        seed,
+                                        speed_dim=dim,
+                                        gait_freq_hz=gait_freq,
+                                    ),
                                     advance(f"{label} {t} {dim} {v:g} {unit}"),
                                 )
                                 for p in pols
@@ -291,6 +315,7 @@ def eval_cmd(
             "randomize": randomize,
             "seed": seed,
             "actor": actor,
+            "gait_freq_hz": gait_freq,
             "eval_tile_m": first["tile_m"],
         },
         "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
@@ -319,7 +344,8 @@ def eval_cmd(
         title="tron1 eval (Table I)",
         caption=f"{actor}s, level {level}, {envs} envs x {steps} steps, "
         f"randomisation {'on' if randomize else 'off'}, "
-        f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; "
+        + ("" if gait_freq is None else f"gait {gait_freq:g} Hz, ")
+        + f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; "
         "success and traverse in %",
     )
     table.add_column("method")

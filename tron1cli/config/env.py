@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TerrainConfig
@@ -105,6 +105,23 @@ class GaitConfig:
             raise ValueError("gait frequencies must be positive")
         if not 0.0 < self.stance < 1.0:
             raise ValueError("stance fraction must lie in (0, 1)")
+
+    def deployed_hz(self, asked_hz: float | None = None) -> float:
+        """The one clock frequency a deployment runs (Hz): ``asked_hz``, checked as in
+        :meth:`fixed`, else the middle of the trained range; 0 without the prior (no clock is read)."""
+        if asked_hz is None:
+            return 0.5 * (self.freq_hz[0] + self.freq_hz[1]) if self.enabled else 0.0
+        return self.fixed(asked_hz).freq_hz[0]
+
+    def fixed(self, freq_hz: float) -> GaitConfig:
+        """This prior with its clock held at ``freq_hz`` (Hz) for every command; it must lie in
+        the trained range. ValueError for a policy without the prior or a frequency outside it."""
+        if not self.enabled:
+            raise ValueError("the policy was trained without the gait prior: it has no gait frequency")
+        lo, hi = self.freq_hz
+        if not lo <= freq_hz <= hi:  # NaN fails too
+            raise ValueError(f"gait frequency {freq_hz:g} Hz lies outside the trained range {lo:g}-{hi:g} Hz")
+        return replace(self, freq_hz=(float(freq_hz), float(freq_hz)))
 
 
 @dataclass(frozen=True)

@@ -53,7 +53,9 @@ class DeployConfig:
     seconds; realtime: pace the loop to the wall clock; seed: env, terrain and noise seed; noise:
     proprioceptive and depth sensor noise; depth_latency_ms: latency added to every depth frame;
     physics_hz: physics (and PD) rate, None for the policy's own; randomize: the policy's training
-    randomisation instead of the nominal robot; viewer: MuJoCo passive viewer (needs a display).
+    randomisation instead of the nominal robot; viewer: MuJoCo passive viewer (needs a display);
+    gait_freq_hz: the gait clock's frequency (Hz, in the policy's trained range), None for the
+    middle of that range.
     """
 
     terrain: str = "flat"
@@ -68,6 +70,7 @@ class DeployConfig:
     physics_hz: float | None = None
     randomize: bool = False
     viewer: bool = False
+    gait_freq_hz: float | None = None
 
 
 def check_display() -> None:
@@ -194,7 +197,12 @@ class DeploySim:
             resample_s=(1e9, 1e9),
             standing_share=0.0,
         )
-        mid = float(np.mean(base.gait.freq_hz))  # a fixed gait frequency: the middle of the trained range
+        gait = base.gait
+        try:  # one fixed frequency, the middle of the trained range unless asked
+            if gait.enabled or cfg.gait_freq_hz is not None:
+                gait = gait.fixed(gait.deployed_hz(cfg.gait_freq_hz))
+        except ValueError as e:
+            raise UsageError(f"--gait-freq: {e}") from None
         return replace(
             base,
             num_envs=1,
@@ -208,7 +216,7 @@ class DeploySim:
             randomization=base.randomization if cfg.randomize else RandomizationConfig(),
             pushes=PUSHES[cfg.push](),
             commands=commands,
-            gait=replace(base.gait, freq_hz=(mid, mid)),
+            gait=gait,
             noise=replace(base.noise, enabled=cfg.noise),
             termination=replace(base.termination, episode_length_s=cfg.duration_s + 1.0),
         )

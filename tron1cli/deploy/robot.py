@@ -40,7 +40,7 @@ from tron1cli.env.core import ACTION_CLIP
 from tron1cli.env.gait import clock_observation
 from tron1cli.env.math3d import quat_rotate_inverse
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
-from tron1cli.errors import Tron1Error
+from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.policy.contract import check_matches_env, layout_of
 from tron1cli.policy.runtime import Policy
 
@@ -119,7 +119,8 @@ class RobotConfig:
     until Ctrl-C); ramp_s: the stand-up ramp; watchdog_s: longest silence of state or IMU;
     max_tilt_rad: base tilt limit; depth_timeout_s: oldest depth frame a perceptive policy may
     act on (30 Hz frames: 7 in a row lost); damping_kd: Kd of the damping command (N m s/rad); damping_s:
-    how long it is sent at the end; connect_timeout_s: wait for the first messages.
+    how long it is sent at the end; connect_timeout_s: wait for the first messages; gait_freq_hz:
+    the gait clock's frequency (Hz, in the policy's trained range), None for the middle of it.
     """
 
     ip: str = "127.0.0.1"
@@ -133,6 +134,7 @@ class RobotConfig:
     damping_kd: float = 2.5
     damping_s: float = 0.3
     connect_timeout_s: float = 10.0
+    gait_freq_hz: float | None = None
 
 
 class Trip(Exception):
@@ -171,8 +173,11 @@ class RobotController:
         self.kp, self.kd = float(c["kp_nm_per_rad"]), float(c["kd_nm_s_per_rad"])
         self.dt = 1.0 / float(c["policy_hz"])
         self.ranges = robot.JOINT_RANGES  # the contract's joint order is ours (check_matches_env)
-        freq = c["gait_clock"].get("freq_hz") or [0.0, 0.0]
-        self.observer = Observer(layout, self.default, float(np.mean(freq)))
+        try:
+            freq = policy.run_cfg.env.gait.deployed_hz(cfg.gait_freq_hz)
+        except ValueError as e:
+            raise UsageError(f"--gait-freq: {e}") from None
+        self.observer = Observer(layout, self.default, freq)
         cmds = policy.run_cfg.env.commands
         self.cmd_max = np.array(
             [max(map(abs, cmds.lin_vel_x)), max(map(abs, cmds.lin_vel_y)), max(map(abs, cmds.ang_vel_yaw))]
@@ -375,6 +380,7 @@ class RobotController:
             "ramp_s": self.cfg.ramp_s,
             "command": cmd,
             "joystick": self.cfg.joystick,
+            "gait_freq_hz": float(self.observer.freq[0]) if self.observer.layout.gait_clock else None,
             "motor_names": self.motor_names,
             "vel_tracking_error": None,  # the SDK carries no base velocity: see sim-robot --report
             "max_tilt_rad": round(self.tilt_max, 4),

@@ -158,7 +158,8 @@ class EvalSpec:
     randomisation (off: nominal model); speed: when set, every env is commanded ``speed`` along
     ``speed_dim`` (``vx``, ``vy`` in m/s, ``yaw`` in rad/s) and zero on the other two, for the whole
     window (Fig. 5); otherwise the training command distribution; pushes: random pushes during the
-    window (push tests set their own wrench instead).
+    window (push tests set their own wrench instead); gait_freq_hz: hold the gait clock at this
+    frequency (Hz, in the policy's trained range) instead of drawing it with each command.
     """
 
     terrain: str = "flat"
@@ -170,6 +171,7 @@ class EvalSpec:
     seed: int = 0
     pushes: PushConfig | None = None
     speed_dim: str = "vx"
+    gait_freq_hz: float | None = None
 
     def __post_init__(self) -> None:
         if self.num_envs < 1 or self.steps < 1:
@@ -210,6 +212,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         randomization=base.randomization if spec.randomize else RandomizationConfig(),
         pushes=spec.pushes or PushConfig(),
         commands=commands,
+        gait=base.gait if spec.gait_freq_hz is None else base.gait.fixed(spec.gait_freq_hz),
         terrain_cfg=eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
         termination=replace(base.termination, episode_length_s=(spec.steps + 10) * base.policy_dt),
     )

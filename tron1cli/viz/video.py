@@ -16,7 +16,8 @@ edges shade, the left foot orange and the right foot blue, the commanded (green)
 (blue, mean over the last 0.5 s: about one gait cycle) planar velocity as arrows above the base,
 a push as a magenta (force) or purple (torque) arrow while it acts, and a camera that follows the
 base and, slowly, its heading. Frames are encoded to H.264 by PyAV (FFmpeg's libraries, in its
-wheel).
+wheel). Beside the video goes a still strip (``walk.mp4`` -> ``walk.png``): per segment a row of
+:data:`STRIP_FRAMES` frames evenly spaced from the first to the last, for a README or an issue.
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ VEL_RGBA = (0.16, 0.47, 1.0, 1.0)
 PUSH_F_RGBA = (0.9, 0.12, 0.78, 1.0)
 PUSH_T_RGBA = (0.6, 0.12, 0.9, 1.0)
 SUN_DIR = np.array([0.5, 0.3, -0.81]) / np.linalg.norm([0.5, 0.3, -0.81])  #: a low sun: risers shade
+STRIP_FRAMES = 5  #: frames per segment in the still strip written beside each video
+STRIP_MAX_WIDTH = 1600  #: the strip's width limit (px): frames are scaled down to fit a row
 
 
 class VideoError(Exception):
@@ -496,6 +499,38 @@ def _view_text(
     return lines
 
 
+def strip_path(video: Path) -> Path:
+    """Where the still strip of ``video`` goes: the same name with ``.png``."""
+    return Path(video).with_suffix(".png")
+
+
+def strip_indices(frames: int, n: int = STRIP_FRAMES) -> list[int]:
+    """Up to ``n`` frame indices evenly spaced over ``frames`` frames, the first and last included."""
+    if frames <= 0:
+        return []
+    return sorted({int(i) for i in np.linspace(0, frames - 1, min(n, frames)).round()})
+
+
+def frame_strip(rows: list[list[np.ndarray]], max_width: int = STRIP_MAX_WIDTH) -> np.ndarray:
+    """Tile frames (each (H, W, 3) uint8, all one size) into one image: a row per list, left to
+    right, scaled by one factor so that the widest row fits ``max_width`` px (never enlarged)."""
+    from PIL import Image
+
+    rows = [r for r in rows if r]
+    if not rows:
+        raise ValueError("frame_strip needs at least one frame")
+    h, w = rows[0][0].shape[:2]
+    cols = max(len(r) for r in rows)
+    scale = min(1.0, max_width / (cols * w))
+    tw, th = max(1, round(w * scale)), max(1, round(h * scale))
+    out = np.full((th * len(rows), tw * cols, 3), 255, np.uint8)
+    for i, row in enumerate(rows):
+        for j, f in enumerate(row):
+            img = f if (tw, th) == (w, h) else np.asarray(Image.fromarray(f).resize((tw, th), Image.LANCZOS))
+            out[i * th : (i + 1) * th, j * tw : (j + 1) * tw] = img
+    return out
+
+
 def render_job(job: Path, out: Path, stats: Path) -> None:
     """Render a recording (:meth:`VideoRecorder.write_job`) to ``out`` (H.264 MP4) and write its
     figures to ``stats``. Exits :data:`BACKEND_MISSING_RC` when no OpenGL context can be made."""
@@ -511,6 +546,7 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
     segments = meta["segments"]
     render_s = encode_s = 0.0
     frames = 0
+    strip_rows: list[list[np.ndarray]] = []
     with av.open(str(out), "w") as container:
         codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
         stream = container.add_stream(codec, rate=fps)
@@ -524,6 +560,8 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
             tw, th = (width // cols) & ~1, (height // rows) & ~1
             px = max(10, th // 26)
             views = []
+            keep = set(strip_indices(seg["frames"]))
+            strip_rows.append([])
             for j, v in enumerate(seg["views"]):
                 key = f"s{s}v{j}"
                 model = _video_model(v["ground"], (tw, th))
@@ -558,6 +596,8 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
                         frame = _text(
                             frame, [(seg["caption"], (255, 230, 120))], bottom, "bottom", bottom + 8
                         )
+                    if k in keep:
+                        strip_rows[-1].append(frame)
                     t1 = time.perf_counter()
                     for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
                         container.mux(packet)
@@ -571,10 +611,15 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
         for packet in stream.encode():
             container.mux(packet)
         encode_s += time.perf_counter() - t1
+    from PIL import Image
+
+    strip = strip_path(out)
+    Image.fromarray(frame_strip(strip_rows)).save(strip)
     stats.write_text(
         json.dumps(
             {
                 "path": str(out),
+                "strip": str(strip),
                 "frames": frames,
                 "fps": fps,
                 "width": width,
