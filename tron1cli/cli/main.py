@@ -15,6 +15,7 @@ try:  # MuJoCo reads MUJOCO_GL when it is first imported, and refuses a value it
     from tron1cli.cli import deploy_sim as deploy_sim_cmd
     from tron1cli.cli import evaluate as evaluate_cmd
     from tron1cli.cli import export as export_cmd
+    from tron1cli.cli import report as report_cmd
     from tron1cli.cli import train as train_cmd
 except RuntimeError as e:
     if "MUJOCO_GL" not in str(e):
@@ -57,6 +58,7 @@ app.command("push-test")(evaluate_cmd.push_test)
 app.command("export-onnx")(export_cmd.export_onnx)
 app.command("deploy-sim")(deploy_sim_cmd.deploy_sim)
 app.command("bench")(bench_cmd.bench)
+app.command("report")(report_cmd.report)
 app.command("deploy-robot")(deploy_robot_cmd.deploy_robot)
 app.command("sim-robot")(deploy_robot_cmd.sim_robot)
 

@@ -25,9 +25,26 @@ TABLE_COLUMNS: dict[str, tuple[tuple[str, ...], int]] = {
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
-    """The per-iteration metrics of a run directory (``metrics.jsonl``)."""
+    """The per-iteration metrics of a run directory (``metrics.jsonl``). A cut-off last line (a
+    run killed while writing it) is left out; ValueError for a missing file or a corrupt line."""
     path = Path(run_dir) / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if not path.is_file():
+        raise ValueError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
+    lines = path.read_text().splitlines()
+    rows = []
+    for k, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            if k == len(lines) - 1:
+                break
+            raise ValueError(f"{path} line {k + 1} is not JSON") from None
+        if not isinstance(row, dict) or not {"wall_s", "env_steps"} <= row.keys():
+            raise ValueError(f"{path} line {k + 1} is not a training iteration's metrics")
+        rows.append(row)
+    return rows
 
 
 def campaign_phases(run_dirs: list[Path]) -> list[dict]:
@@ -49,12 +66,32 @@ def _mean(rows: list[dict], key: str) -> float | None:
     return sum(vals) / len(vals) if vals else None
 
 
-def campaign_table(rows: list[dict], every_min: float = 15.0, smooth: int = 20) -> str:
-    """Markdown table of a campaign (rows of :func:`campaign_phases`): one line every
-    ``every_min`` wall-clock minutes and the last one, each figure a mean over the ``smooth``
-    iterations up to it within its phase."""
-    head = ["wall-clock minutes", "phase", "iteration", "env steps (M)", *TABLE_COLUMNS]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+#: ``tron1 report``'s two tables (each fits 80 columns): training figures (episode, tracking and
+#: heightmap error are the students'), terrain level per type
+REPORT_COLUMNS: dict[str, dict[str, tuple[tuple[str, ...], int]]] = {
+    "training (episode, tracking and hmap: the students')": {
+        "teacher\nsurvival": (("teacher/survival",), 2),
+        "student\nsurvival": (("student/survival",), 2),
+        "episode\n(s)": (("student/episode_length_s",), 1),
+        "tracking\n(m/s)": (("student/vel_tracking_error",), 2),
+        "mean\nlevel": (("terrain/mean_level",), 2),
+        "hmap\n(cm)": (("learn/heightmap_err_cm",), 1),
+    },
+    "terrain level per type (0 easiest, 9 hardest)": {
+        name.replace("_", "\n"): ((f"terrain/level/{name}",), 1)
+        for name in ("stairs_up", "stairs_down", "slope_up", "slope_down", "rough", "discrete", "flat")
+    },
+}
+LEAD_HEAD = ("wall-clock minutes", "phase", "iteration", "env steps (M)")
+
+
+def campaign_cells(
+    rows: list[dict], every_min: float = 15.0, smooth: int = 20, columns: dict = TABLE_COLUMNS
+) -> list[list[str]]:
+    """A campaign table's cells (rows of :func:`campaign_phases`; :data:`LEAD_HEAD`, then one
+    cell per entry of ``columns``): one line every ``every_min`` wall-clock minutes and the last
+    one, each figure a mean over the ``smooth`` iterations up to it within its phase."""
+    out: list[list[str]] = []
     picks, next_t = [], every_min
     for i, r in enumerate(rows):
         if r["wall_s"] / 60.0 >= next_t or i == len(rows) - 1:
@@ -63,10 +100,18 @@ def campaign_table(rows: list[dict], every_min: float = 15.0, smooth: int = 20) 
     for i in picks:
         r = rows[i]
         win = [x for x in rows[max(0, i - smooth + 1) : i + 1] if x["phase"] == r["phase"]]
-        cells = [f"{r['wall_s'] / 60:.0f}", str(r["phase"] + 1), str(r["iteration"])]
+        cells = [f"{r['wall_s'] / 60:.0f}", str(r["phase"] + 1), str(r.get("iteration", "-"))]
         cells.append(f"{r['env_steps'] / 1e6:.1f}")
-        for keys, digits in TABLE_COLUMNS.values():
+        for keys, digits in columns.values():
             vals = [_mean(win, k) for k in keys]
             cells.append(" / ".join("-" if v is None else f"{v:.{digits}f}" for v in vals))
-        lines.append("| " + " | ".join(cells) + " |")
+        out.append(cells)
+    return out
+
+
+def campaign_table(rows: list[dict], every_min: float = 15.0, smooth: int = 20) -> str:
+    """:func:`campaign_cells` as a Markdown table (the card's)."""
+    head = [*LEAD_HEAD, *TABLE_COLUMNS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(c) + " |" for c in campaign_cells(rows, every_min, smooth)]
     return "\n".join(lines)
