@@ -6,6 +6,7 @@ import csv
 import json
 import math
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -261,9 +262,9 @@ def eval_cmd(
         try:
             for label, pols in loaded.items():
                 for t in terrains:
+                    spec = EvalSpec(t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq)
                     runs = []
                     for k, p in enumerate(pols):
-                        spec = EvalSpec(t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq)
                         take = None
                         if recorder is not None and k == 0:
                             lv = "hardest level" if level == -1 else f"level {level}"
@@ -280,17 +281,7 @@ def eval_cmd(
                             sr = [
                                 run_batch(
                                     p,
-                                    EvalSpec(
-                                        t,
-                                        level,
-                                        envs,
-                                        steps,
-                                        randomize,
-                                        v,
-                                        seed,
-                                        speed_dim=dim,
-                                        gait_freq_hz=gait_freq,
-                                    ),
+                                    replace(spec, speed=v, speed_dim=dim),
                                     advance(f"{label} {t} {dim} {v:g} {unit}"),
                                 )
                                 for p in pols
@@ -472,7 +463,6 @@ def push_test(
     of the heading frame, or a mixed random wrench on all axes; 'none' is the unpushed control.
     Full window, as in eval: only a fall ends an env's window.
     """
-    from dataclasses import replace
 
     from tron1cli.evaluation.protocol import aggregate, resolve_eval_terrains
     from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, run_push_test

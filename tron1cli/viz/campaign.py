@@ -70,12 +70,15 @@ def _mean(rows: list[dict], key: str) -> float | None:
 #: heightmap error are the students'), terrain level per type
 REPORT_COLUMNS: dict[str, dict[str, tuple[tuple[str, ...], int]]] = {
     "training (episode, tracking and hmap: the students')": {
-        "teacher\nsurvival": (("teacher/survival",), 2),
-        "student\nsurvival": (("student/survival",), 2),
-        "episode\n(s)": (("student/episode_length_s",), 1),
-        "tracking\n(m/s)": (("student/vel_tracking_error",), 2),
-        "mean\nlevel": (("terrain/mean_level",), 2),
-        "hmap\n(cm)": (("learn/heightmap_err_cm",), 1),
+        short: TABLE_COLUMNS[long]
+        for short, long in (
+            ("teacher\nsurvival", "teacher survival"),
+            ("student\nsurvival", "student survival"),
+            ("episode\n(s)", "student episode (s)"),
+            ("tracking\n(m/s)", "student tracking (m/s)"),
+            ("mean\nlevel", "mean level"),
+            ("hmap\n(cm)", "heightmap error (cm)"),
+        )
     },
     "terrain level per type (0 easiest, 9 hardest)": {
         name.replace("_", "\n"): ((f"terrain/level/{name}",), 1)
