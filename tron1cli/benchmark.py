@@ -21,7 +21,9 @@ from tron1cli.env.core import Tron1Env
 from tron1cli.env.math3d import yaw_of
 
 
-def _env(num_envs: int, seed: int, nthread: int, terrain: str, level: int, depth: bool) -> Tron1Env:
+def _env(
+    num_envs: int, seed: int, nthread: int, terrain: str, level: int, depth: bool, backend: str
+) -> Tron1Env:
     cfg = EnvConfig(
         num_envs=num_envs,
         seed=seed,
@@ -31,7 +33,7 @@ def _env(num_envs: int, seed: int, nthread: int, terrain: str, level: int, depth
         depth_from=num_envs // 2,
         max_init_level=level,
     )
-    return Tron1Env(cfg)
+    return Tron1Env(cfg, backend=backend)
 
 
 def _time_env(env: Tron1Env, actions: np.ndarray, warmup: int, record: bool):
@@ -65,6 +67,7 @@ def run_bench(
     depth: bool = False,
     level: int = 5,
     rounds: int = 3,
+    backend: str = "mujoco",
 ) -> dict:
     """Measure raw and env policy-step rates (and, with ``depth``, the perceptive env and its
     sensors); returns a flat dict of figures.
@@ -79,8 +82,8 @@ def run_bench(
         raise ValueError("rounds must be >= 1")
     rng = np.random.default_rng(seed)
     actions = rng.normal(0.0, 0.5, (warmup + steps, num_envs, 6))
-    env = _env(num_envs, seed, nthread, terrain, level, depth=False)
-    denv = _env(num_envs, seed, nthread, terrain, level, depth=True) if depth else None
+    env = _env(num_envs, seed, nthread, terrain, level, False, backend)
+    denv = _env(num_envs, seed, nthread, terrain, level, True, backend) if depth else None
     env_s, raw_s, depth_s = [], [], []
     try:
         states = controls = None
@@ -105,6 +108,7 @@ def run_bench(
             "rounds": rounds,
             "decimation": env.cfg.decimation,
             "nthread": nthread,
+            "backend": backend,
             "terrain": terrain,
             "raw_steps_per_s": float(np.median(rates[0])),
             "env_steps_per_s": float(np.median(rates[1])),
@@ -151,7 +155,9 @@ def _time_sensors(env: Tron1Env, repeats: int = 5) -> dict:
     }
 
 
-def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") -> dict:
+def run_train_bench(
+    cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu", backend: str = "mujoco"
+) -> dict:
     """Whole training iterations of ``cfg`` (a :class:`tron1cli.train.runner.RunConfig`) against the
     raw MuJoCo rate of the same physics, in one run.
 
@@ -170,7 +176,7 @@ def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") 
         raise ValueError("rounds must be >= 1 and warmup >= 0")
     T, n = cfg.learner.num_steps_per_env, cfg.env.num_envs
     with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(Path(tmp), cfg, device=device)
+        trainer = Trainer(Path(tmp), cfg, device=device, backend=backend)
         try:
             phys = trainer.env.physics
             states = np.empty((T,) + phys.state.shape)
@@ -215,6 +221,7 @@ def run_train_bench(cfg, rounds: int = 3, warmup: int = 1, device: str = "cpu") 
         "terrain": cfg.env.terrain,
         "perception": cfg.env.perception,
         "nthread": cfg.env.nthread,
+        "backend": backend,
         "device": device,
         "precision": cfg.learner.precision,
         "raw_steps_per_s": steps / float(np.median(raw)),

@@ -1,4 +1,4 @@
-"""``tron1 bench``: env-core throughput against the raw MuJoCo rate, measured in the same run."""
+"""``tron1 bench``: env-core throughput against the raw physics rate, measured in the same run."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from rich.table import Table
 from tron1cli.cli.common import (
     SEED_MAX,
     available_cores,
+    backend_option,
+    check_backend,
     err,
     fail,
     out,
@@ -46,9 +48,10 @@ def bench(
     precision: str = typer.Option(
         "fp32", "--precision", help="With --train: the update's arithmetic, fp32 or bf16."
     ),
+    backend: str = backend_option(),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
-    """Measure the env step rate and the raw mujoco.rollout rate of the same workload."""
+    """Measure the env step rate and the raw physics rate of the same workload."""
     from tron1cli.benchmark import run_bench
     from tron1cli.env.terrain import resolve_terrain
 
@@ -60,23 +63,35 @@ def bench(
         check_level(level, EnvConfig().terrain_cfg.num_levels)
     except ValueError as e:
         fail(str(e), 2)
+    check_backend(backend, terrain)
     threads = threads or available_cores()
     if train:
         device = resolve_device(device)
         precision = resolve_precision(precision, device)
-        _bench_train(envs, threads, seed, terrain, rounds, device, precision, json_out)
+        _bench_train(envs, threads, seed, terrain, rounds, device, precision, backend, json_out)
         return
     with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
         res = run_bench(
-            envs, steps, seed=seed, nthread=threads, terrain=terrain, depth=depth, level=level, rounds=rounds
+            envs,
+            steps,
+            seed=seed,
+            nthread=threads,
+            terrain=terrain,
+            depth=depth,
+            level=level,
+            rounds=rounds,
+            backend=backend,
         )
     if json_out:
         print_json(res)
         return
-    t = Table(title=f"tron1 bench: {envs} envs, {terrain}, {threads} threads, median of {rounds} rounds")
+    t = Table(
+        title=f"tron1 bench: {envs} envs, {terrain}, {threads} threads, {backend} physics, "
+        f"median of {rounds} rounds"
+    )
     t.add_column("what")
     t.add_column("policy steps/s", justify="right")
-    t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}")
+    t.add_row(f"raw {_RAW[backend]} (same states and controls)", f"{res['raw_steps_per_s']:,.0f}")
     t.add_row(
         "env core step (physics, obs, commands, terminations, resets)", f"{res['env_steps_per_s']:,.0f}"
     )
@@ -94,8 +109,20 @@ def bench(
     out.print(t)
 
 
+#: what the raw rate times, per backend
+_RAW = {"mujoco": "mujoco.rollout", "warp": "mujoco_warp.step"}
+
+
 def _bench_train(
-    envs: int, threads: int, seed: int, terrain: str, rounds: int, device: str, precision: str, as_json: bool
+    envs: int,
+    threads: int,
+    seed: int,
+    terrain: str,
+    rounds: int,
+    device: str,
+    precision: str,
+    backend: str,
+    as_json: bool,
 ):
     from tron1cli.benchmark import run_train_bench
     from tron1cli.config.presets import for_terrain
@@ -109,7 +136,7 @@ def _bench_train(
     except ValueError as e:
         fail(str(e), 2)
     with err.status(f"training {rounds} + 1 iterations of {envs} envs on {terrain}..."):
-        res = run_train_bench(cfg, rounds=rounds, device=device)
+        res = run_train_bench(cfg, rounds=rounds, device=device, backend=backend)
     if as_json:
         print_json(res)
     else:
@@ -121,6 +148,7 @@ def print_train_table(res: dict) -> None:
     t = Table(
         title=f"tron1 bench --train: {res['num_envs']} envs x {res['steps_per_env']} steps, "
         f"{res['terrain']}{' (perception)' if res['perception'] else ''}, {res['nthread']} threads, "
+        f"{res['backend']} physics, "
         f"learner on {res['device']} in {res['precision']}, median of {res['rounds']} rounds"
     )
     for col, just in (
@@ -130,7 +158,9 @@ def print_train_table(res: dict) -> None:
         ("ratio to raw", "right"),
     ):
         t.add_column(col, justify=just)
-    t.add_row("raw mujoco.rollout (same states and controls)", f"{res['raw_steps_per_s']:,.0f}", "", "1.00")
+    t.add_row(
+        f"raw {_RAW[res['backend']]} (same states and controls)", f"{res['raw_steps_per_s']:,.0f}", "", "1.00"
+    )
     for key, label, secs in (
         ("train", "whole iteration (collection + learning)", res["collect_s"] + res["learn_s"]),
         ("collect", "collection (env steps, policy inference)", res["collect_s"]),

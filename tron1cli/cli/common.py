@@ -87,6 +87,35 @@ def threads_option(what: str):
     )
 
 
+def backend_option():
+    """The ``--backend`` option of a command that steps physics."""
+    import typer
+
+    return typer.Option(
+        "mujoco",
+        "--backend",
+        help="Physics engine: mujoco (MuJoCo on the CPU) or warp (MuJoCo Warp on the GPU when warp "
+        "sees one, else on its CPU device; flat ground only for now; pip install -e '.[warp]').",
+    )
+
+
+def check_backend(backend: str, terrain: str) -> None:
+    """Exit 2 on an unknown ``--backend``, on warp off flat ground, or on warp not installed."""
+    from tron1cli.env.physics import BACKENDS
+
+    if backend not in BACKENDS:
+        fail(f"--backend: unknown physics backend '{backend}'; choose {' or '.join(BACKENDS)}", 2)
+    if backend == "warp":
+        if terrain != "flat":
+            fail(f"--backend warp runs on flat ground only for now, not on '{terrain}' (--terrain flat)", 2)
+        from tron1cli.env.physics_warp import warp_device
+
+        try:
+            warp_device()
+        except ImportError as e:
+            fail(f"--backend warp: {e}", 2)
+
+
 def available_cores() -> int:
     """CPU cores this process may run on (its affinity mask; all cores where that is unknown)."""
     try:

@@ -17,6 +17,8 @@ from tron1cli.cli.common import (
     SEED_MAX,
     VIDEO_HELP,
     VIDEO_SIZE_HELP,
+    backend_option,
+    check_backend,
     check_outputs,
     err,
     fail,
@@ -193,6 +195,7 @@ def eval_cmd(
         help="Hold the gait clock at this frequency (Hz, within every policy's trained range) "
         "[default: drawn with each command, as in training].",
     ),
+    backend: str = backend_option(),
 ) -> None:
     """Table I metrics (success, orientation, angular velocity, tracking, reconstruction) per terrain.
 
@@ -229,6 +232,8 @@ def eval_cmd(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    for t in terrains:
+        check_backend(backend, t)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
 
@@ -262,7 +267,9 @@ def eval_cmd(
         try:
             for label, pols in loaded.items():
                 for t in terrains:
-                    spec = EvalSpec(t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq)
+                    spec = EvalSpec(
+                        t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq, backend=backend
+                    )
                     runs = []
                     for k, p in enumerate(pols):
                         take = None
@@ -308,6 +315,7 @@ def eval_cmd(
             "actor": actor,
             "gait_freq_hz": gait_freq,
             "eval_tile_m": first["tile_m"],
+            "backend": backend,
         },
         "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
         "results": results,
@@ -456,6 +464,7 @@ def push_test(
     video_size: str | None = typer.Option(
         None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " of the grid [default: 1280x960]."
     ),
+    backend: str = backend_option(),
 ) -> None:
     """Push recovery (Fig. 6): one push per env at t = 2 s, survival 3 s after it, per push type.
 
@@ -481,6 +490,7 @@ def push_test(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
+    check_backend(backend, proto.terrain)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
     recorder = open_video(video, video_size, GRID_SIZE)
@@ -502,7 +512,17 @@ def push_test(
                     rec = recorder if k == 0 else None
                     res.append(
                         run_push_test(
-                            p, proto, envs, level, seed, randomize, advance(label), stream, watch, rec
+                            p,
+                            proto,
+                            envs,
+                            level,
+                            seed,
+                            randomize,
+                            advance(label),
+                            stream,
+                            watch,
+                            rec,
+                            backend,
                         )
                     )
                     if stream is not None:  # the first policy only
@@ -530,6 +550,7 @@ def push_test(
             "watch_s": proto.watch_s,
             "terrain": proto.terrain,
             "level": level,
+            "backend": backend,
             "envs": envs,
             "seed": seed,
             "randomize": randomize,

@@ -16,6 +16,8 @@ from rich.table import Table
 from tron1cli.cli.common import (
     SEED_MAX,
     available_cores,
+    backend_option,
+    check_backend,
     check_outputs,
     err,
     fail,
@@ -107,6 +109,7 @@ def train(
     device: str = typer.Option(
         "cpu", "--device", help="Where the learner runs: cpu or cuda (the simulator stays on the CPU)."
     ),
+    backend: str = backend_option(),
     precision: str = typer.Option(
         "fp32",
         "--precision",
@@ -178,7 +181,19 @@ def train(
     if init is not None and resume:
         fail("--init starts a new run from other weights; --resume continues this one", 2)
     if resume:
-        _resume(ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every, precision)
+        _resume(
+            ctx,
+            run_dir,
+            iterations,
+            device,
+            threads,
+            save_every,
+            minutes,
+            rerun,
+            rerun_every,
+            precision,
+            backend,
+        )
         return
     try:
         if preset is not None:
@@ -246,6 +261,7 @@ def train(
         randomization = skipped
     device = resolve_device(device)
     precision = resolve_precision(precision, device)
+    check_backend(backend, terrain)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
@@ -294,15 +310,15 @@ def train(
         )
     if init is not None and Path(init).resolve().parent == (run_dir / "checkpoints").resolve():
         fail(f"--init {init} lies in this run's own checkpoints; give another run's checkpoint", 2)
-    trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init)
+    trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init, backend=backend)
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=False)
 
 
 def _resume(
-    ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every, precision
+    ctx, run_dir, iterations, device, threads, save_every, minutes, rerun, rerun_every, precision, backend
 ) -> None:
     """``--resume``: the saved run goes on as saved; an option that would change it is refused
-    (the machine's settings excepted: threads, device and precision)."""
+    (the machine's settings excepted: threads, device, precision and the physics backend)."""
     from tron1cli.train.runner import Trainer, check_run_dir
     from tron1cli.viz.rerun_stream import parse_rerun_option
 
@@ -314,7 +330,8 @@ def _resume(
     precision = resolve_precision(precision, device) if _given(ctx, "precision") else None  # None: as saved
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
-    _refuse_changed_options(ctx, run_dir)
+    saved = _refuse_changed_options(ctx, run_dir)
+    check_backend(backend, saved.env.terrain)
     from tron1cli.learn import tune_glibc_malloc
 
     tune_glibc_malloc()
@@ -326,6 +343,7 @@ def _resume(
         threads=threads or available_cores(),
         save_every=save_every if _given(ctx, "save_every") else None,
         precision=precision,
+        backend=backend,
     )
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
 
@@ -384,8 +402,9 @@ def _shown(name: str, value) -> str:
     return f"{flag} {value}"
 
 
-def _refuse_changed_options(ctx, run_dir: Path) -> None:
-    """Exit 2 naming the saved value when an option given with --resume differs from the run's."""
+def _refuse_changed_options(ctx, run_dir: Path):
+    """Exit 2 naming the saved value when an option given with --resume differs from the run's;
+    returns the saved RunConfig."""
     import json
 
     from tron1cli.train.checkpoint import load_checkpoint
@@ -393,7 +412,8 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
 
     state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     try:
-        saved = _saved_values(RunConfig.from_dict(json.loads(state["config"])))
+        run_cfg = RunConfig.from_dict(json.loads(state["config"]))
+        saved = _saved_values(run_cfg)
     except (KeyError, TypeError, ValueError) as e:
         fail(f"{run_dir}: the checkpoint's run configuration is unreadable ({e})", 1)
     for name, was in saved.items():
@@ -420,6 +440,7 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
                 "it as saved; leave the option out, or start a new run in another --run-dir",
                 2,
             )
+    return run_cfg
 
 
 def _value(v) -> str:
@@ -489,7 +510,9 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         f"reward weights {_reward_summary(c)}, learner {_learner_summary(c)}, "
         f"perception {'on' if c.env.perception else 'off'}, randomisation "
         f"{_dr_summary(c.env.randomization.terms)}, pushes {'on' if c.env.pushes.enabled else 'off'}, "
-        f"seed {c.env.seed}, {c.env.nthread} threads, learner on {trainer.learner.device.type} in "
+        f"seed {c.env.seed}, {c.env.nthread} threads, "
+        + (f"physics on warp ({trainer.env.physics.device}), " if trainer.backend == "warp" else "")
+        + f"learner on {trainer.learner.device.type} in "
         f"{c.learner.precision} "
         f"-> {run_dir}"
         + (f" (resumed at iteration {trainer.iteration})" if resumed else "")

@@ -20,7 +20,7 @@ from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
 from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
-from tron1cli.env.physics import BatchedPhysics
+from tron1cli.env.physics import make_physics
 from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model, set_tile
@@ -57,9 +57,14 @@ class StepResult:
 
 
 class Tron1Env:
-    """N TRON1 worlds stepped together. See the module docstring for one step's order."""
+    """N TRON1 worlds stepped together. See the module docstring for one step's order.
 
-    def __init__(self, cfg: EnvConfig, reward_cfg: RewardConfig | None = None) -> None:
+    backend: the physics engine (tron1cli.env.physics.BACKENDS), a setting of the machine.
+    """
+
+    def __init__(
+        self, cfg: EnvConfig, reward_cfg: RewardConfig | None = None, backend: str = "mujoco"
+    ) -> None:
         self.cfg = cfg
         self.reward_cfg = reward_cfg or RewardConfig()
         self.n = cfg.num_envs
@@ -84,7 +89,7 @@ class Tron1Env:
                     set_tile(m, self.bank, int(self.curriculum.tile[i]))
         else:
             models = [self.model] * self.n
-        self.physics = BatchedPhysics(models, nsub=cfg.decimation, nthread=cfg.nthread)
+        self.physics = make_physics(models, cfg.decimation, cfg.nthread, backend)
         self.randomizer = Randomizer(cfg.randomization, models, cfg.sim_dt, cfg.decimation)
         self.edge = self.bank.half_extent - EDGE_MARGIN_M
         self.height_scan = sensors.HeightScan() if cfg.perception else None
@@ -161,6 +166,7 @@ class Tron1Env:
         qvel[:, 0:6] = rng.uniform(-c.base_vel_noise, c.base_vel_noise, (k, 6))
         qvel[:, 6:] = rng.uniform(-c.joint_vel_noise, c.joint_vel_noise, (k, robot.NUM_JOINTS))
         self.randomizer.apply(ids, rng)
+        self.physics.sync(ids)
         self.physics.set_state(ids, qpos, qvel)
         self.targets[ids] = robot.DEFAULT_POSE
         self.physics.forward(ids, self.targets[ids])
@@ -189,7 +195,8 @@ class Tron1Env:
         if late.any():  # system delay: the old target holds until the new one arrives
             self._ctrl[late] = np.broadcast_to(self._prev_targets[:, None, :], self._ctrl.shape)[late]
         self.pusher.tick(self.policy_dt, self.rng)
-        self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
+        changed = self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
+        self.physics.sync(changed)
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
         self._steps_since_reset += 1
@@ -267,8 +274,7 @@ class Tron1Env:
         """Give the worlds of envs ``ids`` the height field of their curriculum tile (a plane, flat
         terrain, has no tile to swap)."""
         if self.model.nhfield:
-            for i in ids:
-                set_tile(self.physics.models[i], self.bank, int(self.curriculum.tile[i]))
+            self.physics.set_tiles(ids, self.bank, self.curriculum.tile[ids])
 
     def curriculum_state(self) -> dict[str, np.ndarray]:
         """Each env's terrain level and tile (N,) each: what a resumed run needs to go on climbing."""

@@ -2,7 +2,8 @@
 
 This is the only module that steps MuJoCo. Everything it hands back is a plain array with the
 env dimension first (state rows, per-substep sensor data), so a GPU backend could fill the same
-arrays later without touching observation, reward or termination code.
+arrays later without touching observation, reward or termination code; MuJoCo Warp does
+(:mod:`tron1cli.env.physics_warp`, chosen by :func:`make_physics`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,14 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 from mujoco import rollout
+
+from tron1cli.env.scene import set_tile
+from tron1cli.env.terrain import TerrainBank
+
+#: physics engines behind the env core: MuJoCo's C engine on the CPU; MuJoCo Warp (a GPU when warp
+#: sees one, else warp's CPU device; flat ground only for now). A setting of the machine, like the
+#: learner's device: runs, checkpoints and policies do not record it.
+BACKENDS = ("mujoco", "warp")
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
@@ -107,6 +116,16 @@ class BatchedPhysics:
         )
         self.state[:] = self.traj[:, -1]
 
+    def sync(self, ids: np.ndarray) -> None:
+        """Carry edits of the models of envs ``ids`` (randomisation) into the engine: nothing to
+        do here, rollout reads the host models themselves."""
+
+    def set_tiles(self, ids: np.ndarray, bank: TerrainBank, tiles: np.ndarray) -> None:
+        """Put the worlds of envs ``ids`` on tiles ``tiles`` (k,) of ``bank``: their models' height
+        fields are rewritten."""
+        for i, tile in zip(np.asarray(ids), np.asarray(tiles), strict=True):
+            set_tile(self.models[i], bank, int(tile))
+
     def set_state(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
         """Overwrite the state of envs ``ids``: time 0, given qpos (k, nq) and qvel (k, nv)."""
         self.state[ids] = 0.0
@@ -133,3 +152,19 @@ class BatchedPhysics:
     def close(self) -> None:
         """Shut the thread pool down."""
         self._pool.close()
+
+
+def make_physics(
+    models: Sequence[mujoco.MjModel],
+    nsub: int,
+    nthread: int = 2,
+    backend: str = "mujoco",
+) -> BatchedPhysics:
+    """The batched physics of ``backend`` (one of :data:`BACKENDS`); ValueError for another."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown physics backend '{backend}'; choose {' or '.join(BACKENDS)}")
+    if backend == "warp":
+        from tron1cli.env.physics_warp import WarpPhysics
+
+        return WarpPhysics(models, nsub)
+    return BatchedPhysics(models, nsub, nthread=nthread)

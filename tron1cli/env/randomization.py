@@ -242,14 +242,14 @@ class Randomizer:
             "motor_strength": strength,
         }
 
-    def gate_restitution(self, foot_in_contact: np.ndarray, foot_vz: np.ndarray) -> int:
+    def gate_restitution(self, foot_in_contact: np.ndarray, foot_vz: np.ndarray) -> np.ndarray:
         """Before a policy step: a foot in the air descending faster than the bounce threshold
         (``foot_vz`` (N, F) m/s, world z) bounces on its impact, which may start in this step
         and go on into the next (:data:`IMPACT_STEPS` policy steps in all); every other foot
         contact stays critically damped. Writes the feet's damping ratios that changed and
-        returns how many."""
+        returns the envs whose models it wrote (sorted ids)."""
         if not self._gated:
-            return 0
+            return np.zeros(0, dtype=np.int64)
         fast = -foot_vz > self.cfg.bounce_threshold_mps
         arm = ~foot_in_contact & fast & (self.impact_zeta < 1.0)[:, None]
         self._impact_left = np.where(
@@ -262,7 +262,7 @@ class Randomizer:
                 impact_solref(self.nominal_solref, self.impact_zeta[i]) if want[i, f] else self.nominal_solref
             )
         self._bouncy = want
-        return len(envs)
+        return np.unique(envs)
 
 
 @dataclass(frozen=True)

@@ -159,7 +159,8 @@ class EvalSpec:
     ``speed_dim`` (``vx``, ``vy`` in m/s, ``yaw`` in rad/s) and zero on the other two, for the whole
     window (Fig. 5); otherwise the training command distribution; pushes: random pushes during the
     window (push tests set their own wrench instead); gait_freq_hz: hold the gait clock at this
-    frequency (Hz, in the policy's trained range) instead of drawing it with each command.
+    frequency (Hz, in the policy's trained range) instead of drawing it with each command;
+    backend: the physics engine (tron1cli.env.physics.BACKENDS).
     """
 
     terrain: str = "flat"
@@ -172,6 +173,7 @@ class EvalSpec:
     pushes: PushConfig | None = None
     speed_dim: str = "vx"
     gait_freq_hz: float | None = None
+    backend: str = "mujoco"
 
     def __post_init__(self) -> None:
         if self.num_envs < 1 or self.steps < 1:
@@ -216,7 +218,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         terrain_cfg=eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
         termination=replace(base.termination, episode_length_s=(spec.steps + 10) * base.policy_dt),
     )
-    env = Tron1Env(cfg, policy.run_cfg.reward)
+    env = Tron1Env(cfg, policy.run_cfg.reward, backend=spec.backend)
     check_matches_env(policy.contract, env.layout, str(policy.path))
     env.pin_terrain_level(spec.level)
     return env

@@ -105,10 +105,11 @@ def run_push_test(
     stream=None,
     watch: str = "+Fx",
     video=None,
+    backend: str = "mujoco",
 ) -> PushResult:
     """One batch of ``num_envs`` under ``proto``; ``stream`` (rerun) gets the first env whose push
     type is ``watch``; ``video`` (a :class:`tron1cli.viz.video.VideoRecorder`) gets one take of
-    the first env of every push type, side by side."""
+    the first env of every push type, side by side; ``backend``: the physics engine."""
     dt = policy.run_cfg.env.policy_dt
     spec = EvalSpec(
         terrain=proto.terrain,
@@ -117,6 +118,7 @@ def run_push_test(
         steps=proto.steps(dt),
         randomize=randomize,
         seed=seed,
+        backend=backend,
     )
     types = np.arange(num_envs) % len(PUSH_TYPES)
     wrench_h = push_wrenches(types, proto, np.random.default_rng(seed + 1))

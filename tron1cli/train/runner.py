@@ -165,6 +165,8 @@ class Trainer:
     (:mod:`tron1cli.learn.warm_start`). save_every: a resumed run's new checkpoint period.
     precision: a resumed run's update arithmetic (``fp32`` or ``bf16``; None: as saved), a setting
     of the machine like ``threads``: it changes no state, only how fast the update computes.
+    backend: the physics engine (tron1cli.env.physics.BACKENDS), a setting of the machine like
+    ``device``: a run does not record it, and a resumed run takes the value given now.
     """
 
     def __init__(
@@ -178,6 +180,7 @@ class Trainer:
         init: Path | None = None,
         save_every: int | None = None,
         precision: str | None = None,
+        backend: str = "mujoco",
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -207,7 +210,8 @@ class Trainer:
         clean_stale_temps(self.run_dir, ".config.json")
         torch.manual_seed(cfg.env.seed)
         torch.set_num_threads(cfg.env.nthread)
-        self.env = Tron1Env(cfg.env, cfg.reward)
+        self.env = Tron1Env(cfg.env, cfg.reward, backend=backend)
+        self.backend = backend
         self.n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
         self.learner = VisionCTSLearner(
             obs_dims(self.env),
