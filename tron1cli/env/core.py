@@ -23,7 +23,7 @@ from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_
 from tron1cli.env.physics import make_physics
 from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
-from tron1cli.env.scene import build_model, set_tile
+from tron1cli.env.scene import build_model
 from tron1cli.env.state import RobotState, read_state
 from tron1cli.env.terrain import TerrainBank, ground_height, mean_ground_height
 
@@ -84,12 +84,10 @@ class Tron1Env:
             # one world per env: its own tile and its own randomised parameters
             # (memory: envs x one tile, not envs x the terrain)
             models = [copy.copy(self.model) for _ in range(self.n)]
-            for i, m in enumerate(models):
-                if self.model.nhfield:
-                    set_tile(m, self.bank, int(self.curriculum.tile[i]))
         else:
             models = [self.model] * self.n
         self.physics = make_physics(models, cfg.decimation, cfg.nthread, backend)
+        self._apply_tiles(np.arange(self.n))
         self.randomizer = Randomizer(cfg.randomization, models, cfg.sim_dt, cfg.decimation)
         self.edge = self.bank.half_extent - EDGE_MARGIN_M
         self.height_scan = sensors.HeightScan() if cfg.perception else None

@@ -84,22 +84,22 @@ class WarpPhysics(BatchedPhysics):
             self._m = mjw.put_model(m0, batch_sizes={f: self.n for f in BATCHED_FIELDS})
             self._d = mjw.make_data(m0, nworld=self.n)
             self._state_dev = wp.zeros((self.n, self.nstate), dtype=wp.float32)
+        # host copies of the batched device rows: sync writes rows here and uploads the field
+        self._mirror = {f: getattr(self._m, f).numpy() for f in BATCHED_FIELDS}
         self._xfrc = np.zeros((self.n, self.nbody, 6), dtype=np.float32)
         self.sync(np.arange(self.n))
 
     def sync(self, ids: np.ndarray) -> None:
         """Copy the batched fields (:data:`BATCHED_FIELDS`) of envs ``ids`` from their host
-        models to the device."""
+        models to the device, through host mirrors of the device rows (no read-back)."""
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size == 0:
             return
-        for name in BATCHED_FIELDS:
-            dev = getattr(self._m, name)
-            rows = dev.numpy()
+        for name, rows in self._mirror.items():
             rows[ids] = np.stack([getattr(self.models[i], name) for i in ids]).reshape(
                 (len(ids), *rows.shape[1:])
             )
-            dev.assign(rows)
+            getattr(self._m, name).assign(rows)
 
     def rollout(self) -> None:
         """Step every world ``nsub`` times from ``state`` under ``control``; as BatchedPhysics,
