@@ -63,7 +63,7 @@ def bench(
         check_level(level, EnvConfig().terrain_cfg.num_levels)
     except ValueError as e:
         fail(str(e), 2)
-    check_backend(backend, terrain)
+    check_backend(backend)
     threads = threads or available_cores()
     if train:
         device = resolve_device(device)

@@ -95,19 +95,17 @@ def backend_option():
         "mujoco",
         "--backend",
         help="Physics engine: mujoco (MuJoCo on the CPU) or warp (MuJoCo Warp on the GPU when warp "
-        "sees one, else on its CPU device; flat ground only for now; pip install -e '.\\[warp]').",
+        "sees one, else on its CPU device; pip install -e '.\\[warp]').",
     )
 
 
-def check_backend(backend: str, terrain: str) -> None:
-    """Exit 2 on an unknown ``--backend``, on warp off flat ground, or on warp not installed."""
+def check_backend(backend: str) -> None:
+    """Exit 2 on an unknown ``--backend``, or on warp not installed."""
     from tron1cli.env.physics import BACKENDS
 
     if backend not in BACKENDS:
         fail(f"--backend: unknown physics backend '{backend}'; choose {' or '.join(BACKENDS)}", 2)
     if backend == "warp":
-        if terrain != "flat":
-            fail(f"--backend warp runs on flat ground only for now, not on '{terrain}' (--terrain flat)", 2)
         from tron1cli.env.physics_warp import warp_device
 
         try:

@@ -232,8 +232,7 @@ def eval_cmd(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
-    for t in terrains:
-        check_backend(backend, t)
+    check_backend(backend)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
 
@@ -490,7 +489,7 @@ def push_test(
         target = parse_rerun_option(rerun)
     except ValueError as e:
         fail(str(e), 2)
-    check_backend(backend, proto.terrain)
+    check_backend(backend)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
     recorder = open_video(video, video_size, GRID_SIZE)

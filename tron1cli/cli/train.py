@@ -261,7 +261,7 @@ def train(
         randomization = skipped
     device = resolve_device(device)
     precision = resolve_precision(precision, device)
-    check_backend(backend, terrain)
+    check_backend(backend)
     threads = threads or available_cores()
     check_run_dir(run_dir, resume)
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
@@ -330,8 +330,8 @@ def _resume(
     precision = resolve_precision(precision, device) if _given(ctx, "precision") else None  # None: as saved
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
-    saved = _refuse_changed_options(ctx, run_dir)
-    check_backend(backend, saved.env.terrain)
+    _refuse_changed_options(ctx, run_dir)
+    check_backend(backend)
     from tron1cli.learn import tune_glibc_malloc
 
     tune_glibc_malloc()
@@ -402,9 +402,8 @@ def _shown(name: str, value) -> str:
     return f"{flag} {value}"
 
 
-def _refuse_changed_options(ctx, run_dir: Path):
-    """Exit 2 naming the saved value when an option given with --resume differs from the run's;
-    returns the saved RunConfig."""
+def _refuse_changed_options(ctx, run_dir: Path) -> None:
+    """Exit 2 naming the saved value when an option given with --resume differs from the run's."""
     import json
 
     from tron1cli.train.checkpoint import load_checkpoint
@@ -440,7 +439,6 @@ def _refuse_changed_options(ctx, run_dir: Path):
                 "it as saved; leave the option out, or start a new run in another --run-dir",
                 2,
             )
-    return run_cfg
 
 
 def _value(v) -> str:

@@ -86,7 +86,7 @@ class Tron1Env:
             models = [copy.copy(self.model) for _ in range(self.n)]
         else:
             models = [self.model] * self.n
-        self.physics = make_physics(models, cfg.decimation, cfg.nthread, backend)
+        self.physics = make_physics(models, cfg.decimation, cfg.nthread, backend, self.bank)
         self._apply_tiles(np.arange(self.n))
         self.randomizer = Randomizer(cfg.randomization, models, cfg.sim_dt, cfg.decimation)
         self.edge = self.bank.half_extent - EDGE_MARGIN_M

@@ -18,7 +18,7 @@ from tron1cli.env.scene import set_tile
 from tron1cli.env.terrain import TerrainBank
 
 #: physics engines behind the env core: MuJoCo's C engine on the CPU; MuJoCo Warp (a GPU when warp
-#: sees one, else warp's CPU device; flat ground only for now). A setting of the machine, like the
+#: sees one, else warp's CPU device). A setting of the machine, like the
 #: learner's device: runs, checkpoints and policies do not record it.
 BACKENDS = ("mujoco", "warp")
 
@@ -159,12 +159,15 @@ def make_physics(
     nsub: int,
     nthread: int = 2,
     backend: str = "mujoco",
+    bank: TerrainBank | None = None,
 ) -> BatchedPhysics:
-    """The batched physics of ``backend`` (one of :data:`BACKENDS`); ValueError for another."""
+    """The batched physics of ``backend`` (one of :data:`BACKENDS`); ValueError for another.
+    ``bank``: the terrain the models' height field takes its tiles from (warp lays them all out
+    on the device; the CPU engine rewrites each model's own height field)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown physics backend '{backend}'; choose {' or '.join(BACKENDS)}")
     if backend == "warp":
         from tron1cli.env.physics_warp import WarpPhysics
 
-        return WarpPhysics(models, nsub)
+        return WarpPhysics(models, nsub, bank=bank)
     return BatchedPhysics(models, nsub, nthread=nthread)

@@ -9,9 +9,11 @@ Per-env model fields the randomiser writes (Table III: mass, CoM, friction, cont
 gains, torque limits) are batched model fields on the device, one row per world; after the host
 models change, :meth:`WarpPhysics.sync` copies the changed worlds' rows.
 
-Terrain: flat ground (a plane) only. Warp shares ``hfield_data`` between worlds; its batched
-``geom_dataid`` could point each world's ground at its own tile of one model holding them all,
-but that layout did not follow the CPU engine on stairs when tried (README, physics backends).
+Terrain: flat ground is a plane; a height-field terrain is one device model holding every tile of
+the bank as its own height field (:func:`~tron1cli.env.scene.build_model` with ``all_tiles``),
+and each world's ground geom points at its tile through the batched ``geom_dataid``: warp
+shares ``hfield_data`` between worlds, so a per-world height field is not on offer. The host
+models keep their own tile as on the CPU engine (sensor data after resets is computed there).
 
 Needs the optional ``warp`` extra (``pip install -e '.[warp]'``); it runs on warp's CPU device
 when no GPU is visible (slow: for development and tests), and compiles its kernels on first use
@@ -26,6 +28,8 @@ import mujoco
 import numpy as np
 
 from tron1cli.env.physics import STATE_SPEC, BatchedPhysics
+from tron1cli.env.scene import GROUND_NAME, build_model
+from tron1cli.env.terrain import TerrainBank
 
 #: model fields the randomiser writes per env (tron1cli.env.randomization), batched per world
 BATCHED_FIELDS = (
@@ -46,7 +50,11 @@ def warp_device(device: str | None = None) -> str:
     try:
         import warp as wp
 
-        wp.config.quiet = True  # before mujoco_warp initialises warp: no device banner
+        # before warp initialises: no device banner nor per-module load lines (warp >= 1.19 reads
+        # log_level, earlier versions quiet); warnings still show
+        wp.config.quiet = True
+        if hasattr(wp, "LOG_WARNING"):
+            wp.config.log_level = wp.LOG_WARNING
         import mujoco_warp  # noqa: F401
     except ImportError as e:
         raise ImportError("the warp backend needs mujoco-warp: pip install -e '.[warp]'") from e
@@ -63,6 +71,8 @@ class WarpPhysics(BatchedPhysics):
             randomiser edit; :meth:`sync` carries their edits to the device).
         nsub: physics substeps per :meth:`step`.
         device: warp device (``cpu``, ``cuda:0``); default as :func:`warp_device`.
+        bank: the terrain bank the models' height field takes its tiles from (needed when they
+            have one); the worlds start on tile 0 until :meth:`set_tiles`.
     """
 
     def __init__(
@@ -70,22 +80,29 @@ class WarpPhysics(BatchedPhysics):
         models: Sequence[mujoco.MjModel],
         nsub: int,
         device: str | None = None,
+        bank: TerrainBank | None = None,
     ) -> None:
-        if models and models[0].nhfield:
-            raise ValueError("the warp backend runs on flat ground only for now (--terrain flat)")
+        terrain = bool(models) and models[0].nhfield > 0
+        if terrain and bank is None:
+            raise ValueError("the warp backend needs the terrain bank of a height-field model")
         self.device = warp_device(device)
         super().__init__(models, nsub, nthread=1)  # host arrays, and mj_forward after resets
         import mujoco_warp as mjw
         import warp as wp
 
         m0 = self.models[0]
+        dev_model = build_model(m0.opt.timestep, bank, all_tiles=True) if terrain else m0
+        if (dev_model.nbody, dev_model.ngeom, dev_model.nu) != (m0.nbody, m0.ngeom, m0.nu):
+            raise ValueError("the env's models are not the robot of build_model: cannot lay out tiles")
+        batched = BATCHED_FIELDS + (("geom_dataid",) if terrain else ())
         self._wp, self._mjw = wp, mjw
         with wp.ScopedDevice(self.device):
-            self._m = mjw.put_model(m0, batch_sizes={f: self.n for f in BATCHED_FIELDS})
-            self._d = mjw.make_data(m0, nworld=self.n)
+            self._m = mjw.put_model(dev_model, batch_sizes={f: self.n for f in batched})
+            self._d = mjw.make_data(dev_model, nworld=self.n)
             self._state_dev = wp.zeros((self.n, self.nstate), dtype=wp.float32)
         # host copies of the batched device rows: sync writes rows here and uploads the field
-        self._mirror = {f: getattr(self._m, f).numpy() for f in BATCHED_FIELDS}
+        self._mirror = {f: getattr(self._m, f).numpy() for f in batched}
+        self._ground = dev_model.geom(GROUND_NAME).id
         self._xfrc = np.zeros((self.n, self.nbody, 6), dtype=np.float32)
         self.sync(np.arange(self.n))
 
@@ -95,11 +112,20 @@ class WarpPhysics(BatchedPhysics):
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size == 0:
             return
-        for name, rows in self._mirror.items():
+        for name in BATCHED_FIELDS:
+            rows = self._mirror[name]
             rows[ids] = np.stack([getattr(self.models[i], name) for i in ids]).reshape(
                 (len(ids), *rows.shape[1:])
             )
             getattr(self._m, name).assign(rows)
+
+    def set_tiles(self, ids: np.ndarray, bank: TerrainBank, tiles: np.ndarray) -> None:
+        """Put the worlds of envs ``ids`` on tiles ``tiles`` (k,): their ground geom points at the
+        tile's height field on the device; the host models take the tile as on the CPU engine."""
+        super().set_tiles(ids, bank, tiles)
+        rows = self._mirror["geom_dataid"]
+        rows[np.asarray(ids), self._ground] = np.asarray(tiles)
+        self._m.geom_dataid.assign(rows)
 
     def rollout(self) -> None:
         """Step every world ``nsub`` times from ``state`` under ``control``; as BatchedPhysics,

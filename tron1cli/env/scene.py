@@ -25,13 +25,19 @@ def _ground_style() -> dict:
 
 
 def build_model(
-    sim_dt: float = 0.005, bank: TerrainBank | None = None, asset: Path | None = None
+    sim_dt: float = 0.005,
+    bank: TerrainBank | None = None,
+    asset: Path | None = None,
+    all_tiles: bool = False,
 ) -> mujoco.MjModel:
     """The robot on the ground, with physics step ``sim_dt`` (s).
 
     bank: terrain tiles; None or an all-flat bank gives a plane. The ground is the only geom the
     robot collides with (contype 1 / conaffinity 0 against the robot's contype 0 / conaffinity 1),
     so there are no self-collisions.
+    all_tiles: one height field per tile of the bank (tile k in height field k), the ground on
+    tile 0; an engine that batches ``geom_dataid`` puts each world on its own tile by pointing
+    the ground at another height field. Default: one height field, written by :func:`set_tile`.
     """
     spec = robot.load_spec(asset)
     spec.option.timestep = sim_dt
@@ -40,18 +46,21 @@ def build_model(
         return spec.compile()
     lo, hi = hfield_range(bank)
     half = (bank.R - 1) / 2 * bank.res
-    spec.add_hfield(
-        name="terrain",
-        nrow=bank.R,
-        ncol=bank.R,
-        size=[half, half, hi - lo, HFIELD_BASE_M],
-        userdata=np.zeros(bank.R * bank.R).tolist(),
-    )
+    names = [f"terrain_{k}" for k in range(bank.K)] if all_tiles else ["terrain"]
+    for name in names:
+        spec.add_hfield(
+            name=name,
+            nrow=bank.R,
+            ncol=bank.R,
+            size=[half, half, hi - lo, HFIELD_BASE_M],
+            userdata=np.zeros(bank.R * bank.R).tolist(),
+        )
     spec.worldbody.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain", pos=[0, 0, lo], **_ground_style()
+        type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=names[0], pos=[0, 0, lo], **_ground_style()
     )
     model = spec.compile()
-    set_tile(model, bank, 0)
+    for k in range(len(names)):
+        set_tile(model, bank, k, hfield=k)
     return model
 
 
@@ -61,12 +70,14 @@ def hfield_range(bank: TerrainBank) -> tuple[float, float]:
     return lo, max(hi, lo + 0.01)
 
 
-def set_tile(model: mujoco.MjModel, bank: TerrainBank, tile: int) -> None:
-    """Write tile ``tile`` of ``bank`` into the model's height field (row 0 at -y, column 0 at -x).
+def set_tile(model: mujoco.MjModel, bank: TerrainBank, tile: int, hfield: int = 0) -> None:
+    """Write tile ``tile`` of ``bank`` into the model's height field ``hfield`` (row 0 at -y,
+    column 0 at -x).
 
     The bank's height range is read back from the model (the ground's z offset and the height
     field's z size, set by :func:`build_model`), not recomputed over the whole bank per call.
     """
     lo = float(model.geom(GROUND_NAME).pos[2])
-    span = float(model.hfield_size[0, 2])
-    model.hfield_data[:] = ((bank.heights[tile] - lo) / span).ravel()
+    span = float(model.hfield_size[hfield, 2])
+    adr = int(model.hfield_adr[hfield])
+    model.hfield_data[adr : adr + bank.R * bank.R] = ((bank.heights[tile] - lo) / span).ravel()
