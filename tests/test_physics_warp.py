@@ -101,16 +101,51 @@ def test_warp_without_mujoco_warp_installed_says_how_to_install_it(tmp_path):
     assert "pip install -e '.[warp]'" in r.stderr
 
 
-def test_the_cpu_engine_syncs_nothing_and_reads_its_models():
-    """sync is the backends' common hook after the randomiser writes models; the CPU engine reads
-    the host models directly, so a model edit shows without it."""
-    models = _worlds(2)
+def test_the_cpu_engine_writes_each_named_model_a_row_broadcast_as_numpy_does():
+    models = _worlds(3)
     phys = make_physics(models, 4, nthread=1)
-    _start(phys, 2)
-    phys.sync(np.array([0, 1]))
-    states = _run(phys, 2, steps=5)
-    assert not np.allclose(states[-1, 0, 1:], states[-1, 1, 1:])  # the payloads differ
+    base = models[0].body("base").id
+    mass0, friction1 = models[0].body_mass.copy(), models[1].geom_friction.copy()
+    phys.write_models(np.array([2, 1]), "body_mass", (base,), np.array([7.0, 5.0]))
+    phys.write_models(np.array([1]), "geom_friction", ([0, 2], 0), np.array([0.9]))
+    phys.write_models(np.array([2]), "actuator_forcerange", (slice(None),), np.array([[-3.0, 3.0]]))
+    assert models[2].body_mass[base] == 7.0 and models[1].body_mass[base] == 5.0
+    np.testing.assert_array_equal(models[0].body_mass, mass0)
+    np.testing.assert_array_equal(models[1].geom_friction[[0, 2], 0], 0.9)
+    np.testing.assert_array_equal(models[1].geom_friction[1], friction1[1])
+    np.testing.assert_array_equal(models[2].actuator_forcerange, np.tile([-3.0, 3.0], (models[2].nu, 1)))
     phys.close()
+
+
+def _device_rows_match_host_models(gpu) -> None:
+    from tron1cli.env.physics_warp import BATCHED_FIELDS
+
+    for name in BATCHED_FIELDS:
+        host = np.stack([getattr(m, name) for m in gpu.models]).astype(np.float32)
+        dev = getattr(gpu._m, name).numpy()
+        np.testing.assert_allclose(dev.reshape(host.shape), host, rtol=1e-6, err_msg=name)
+
+
+def test_table_iii_reaches_the_warp_device_rows_of_the_worlds_reset():
+    """The randomiser's (k, ...) arrays land in the batched device rows of exactly the envs
+    reset, equal to what the host models (the CPU engine's) hold, for every batched field."""
+    pytest.importorskip("mujoco_warp")
+    from tron1cli.config.env import EnvConfig
+    from tron1cli.env.core import Tron1Env
+    from tron1cli.env.randomization import RandomizationConfig
+
+    cfg = EnvConfig(num_envs=6, nthread=1, seed=3, randomization=RandomizationConfig.table_iii())
+    env = Tron1Env(cfg, backend="warp")
+    env.reset()
+    _device_rows_match_host_models(env.physics)
+    base = env.physics.models[0].body("base").id
+    before = env.physics._m.body_mass.numpy()[:, base].copy()
+    env._reset_envs(np.array([4, 1]))
+    after = env.physics._m.body_mass.numpy()[:, base]
+    changed = np.flatnonzero(after != before)
+    assert set(changed) <= {1, 4} and len(changed) == 2  # payloads are continuous: both moved
+    _device_rows_match_host_models(env.physics)
+    env.physics.close()
 
 
 @pytest.mark.slow
@@ -133,18 +168,17 @@ def test_warp_follows_the_cpu_engine_world_by_world():
 
 
 @pytest.mark.slow
-def test_warp_sync_reaches_the_worlds_named_and_no_other():
+def test_a_warp_model_write_reaches_the_worlds_named_and_no_other():
     pytest.importorskip("mujoco_warp")
     n = 3
     m = build_model()
     models = [copy.copy(m) for _ in range(n)]
     gpu = make_physics(models, 4, backend="warp")
     base = models[0].body("base").id
-    models[1].body_mass[base] += 3.0  # written on the host, not yet on the device
     _start(gpu, n)
     before = _run(gpu, n, steps=10)
-    assert np.abs(before[:, 1] - before[:, 0]).max() < 1e-6  # the device still had the old mass
-    gpu.sync(np.array([1]))
+    assert np.abs(before[:, 1] - before[:, 0]).max() < 1e-6  # the same robot in every world
+    gpu.write_models(np.array([1]), "body_mass", (base,), np.array([m.body_mass[base] + 3.0]))
     _start(gpu, n)
     after = _run(gpu, n, steps=10)
     assert np.abs(after[:, 0] - before[:, 0]).max() < 1e-6

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tron1cli.env import robot
+from tron1cli.env.physics import BatchedPhysics
 from tron1cli.env.randomization import (
     RandomizationConfig,
     Randomizer,
@@ -36,7 +37,7 @@ def measured_restitution(impact_speed: float, cfg: RandomizationConfig | None) -
     model = mujoco.MjModel.from_xml_string(_DROP)
     rnd = None
     if cfg is not None:
-        rnd = Randomizer(cfg, [model], 0.005, 4)
+        rnd = Randomizer(cfg, BatchedPhysics([model], 4, nthread=1), 0.005, 4)
         rnd.apply(np.array([0]), np.random.default_rng(0))
     data = mujoco.MjData(model)
     r = robot.FOOT_RADIUS
@@ -60,6 +61,8 @@ def measured_restitution(impact_speed: float, cfg: RandomizationConfig | None) -
                 touched, approach = True, -vz
             if touched:
                 rebound = max(rebound, float(data.qvel[2]))
+    if rnd is not None:
+        rnd.physics.close()
     assert touched and approach == pytest.approx(impact_speed, rel=0.1)
     return rebound / approach
 

@@ -88,7 +88,7 @@ class Tron1Env:
             models = [self.model] * self.n
         self.physics = make_physics(models, cfg.decimation, cfg.nthread, backend, self.bank)
         self._apply_tiles(np.arange(self.n))
-        self.randomizer = Randomizer(cfg.randomization, models, cfg.sim_dt, cfg.decimation)
+        self.randomizer = Randomizer(cfg.randomization, self.physics, cfg.sim_dt, cfg.decimation)
         self.edge = self.bank.half_extent - EDGE_MARGIN_M
         self.height_scan = sensors.HeightScan() if cfg.perception else None
         self.camera = sensors.DepthCamera() if cfg.perception else None
@@ -164,7 +164,6 @@ class Tron1Env:
         qvel[:, 0:6] = rng.uniform(-c.base_vel_noise, c.base_vel_noise, (k, 6))
         qvel[:, 6:] = rng.uniform(-c.joint_vel_noise, c.joint_vel_noise, (k, robot.NUM_JOINTS))
         self.randomizer.apply(ids, rng)
-        self.physics.sync(ids)
         self.physics.set_state(ids, qpos, qvel)
         self.targets[ids] = robot.DEFAULT_POSE
         self.physics.forward(ids, self.targets[ids])
@@ -193,8 +192,7 @@ class Tron1Env:
         if late.any():  # system delay: the old target holds until the new one arrives
             self._ctrl[late] = np.broadcast_to(self._prev_targets[:, None, :], self._ctrl.shape)[late]
         self.pusher.tick(self.policy_dt, self.rng)
-        changed = self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
-        self.physics.sync(changed)
+        self.randomizer.gate_restitution(self.state.foot_in_contact, self.state.foot_vel[:, :, 2])
         self.physics.step(self._ctrl, self.external_wrench)
         self.episode_step += 1
         self._steps_since_reset += 1

@@ -116,9 +116,12 @@ class BatchedPhysics:
         )
         self.state[:] = self.traj[:, -1]
 
-    def sync(self, ids: np.ndarray) -> None:
-        """Carry edits of the models of envs ``ids`` (randomisation) into the engine: nothing to
-        do here, rollout reads the host models themselves."""
+    def write_models(self, ids: np.ndarray, name: str, index: tuple, values: np.ndarray) -> None:
+        """Set ``model.<name>[index]`` of envs ``ids`` (k,) to ``values`` (k, ...), row j for env
+        ``ids[j]`` (each row broadcast to the indexed part). The randomiser's one way into the
+        engine: here it writes the host models, which rollout reads."""
+        for i, v in zip(np.asarray(ids), values, strict=True):
+            getattr(self.models[i], name)[index] = v
 
     def set_tiles(self, ids: np.ndarray, bank: TerrainBank, tiles: np.ndarray) -> None:
         """Put the worlds of envs ``ids`` on tiles ``tiles`` (k,) of ``bank``: their models' height

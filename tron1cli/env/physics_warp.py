@@ -6,8 +6,10 @@ last step, ``step`` / ``set_state`` / ``forward``, so observation, reward and te
 read it unchanged. Warp computes in float32; the host arrays stay float64.
 
 Per-env model fields the randomiser writes (Table III: mass, CoM, friction, contact softness,
-gains, torque limits) are batched model fields on the device, one row per world; after the host
-models change, :meth:`WarpPhysics.sync` copies the changed worlds' rows.
+gains, torque limits) are batched model fields on the device, one row per world, taken from the
+host models once at construction; afterwards :meth:`WarpPhysics.write_models` writes the sampled
+(k, ...) values into the rows of the worlds named in one array operation and uploads the field
+once (the host models get them too: ``forward`` after resets runs there).
 
 Terrain: flat ground is a plane; a height-field terrain is one device model holding every tile of
 the bank as its own height field (:func:`~tron1cli.env.scene.build_model` with ``all_tiles``),
@@ -100,24 +102,32 @@ class WarpPhysics(BatchedPhysics):
             self._m = mjw.put_model(dev_model, batch_sizes={f: self.n for f in batched})
             self._d = mjw.make_data(dev_model, nworld=self.n)
             self._state_dev = wp.zeros((self.n, self.nstate), dtype=wp.float32)
-        # host copies of the batched device rows: sync writes rows here and uploads the field
+        # host copies of the batched device rows (no read-back): the worlds' own models' values
+        # once here, then write_models edits rows and uploads the field
         self._mirror = {f: getattr(self._m, f).numpy() for f in batched}
+        for name in BATCHED_FIELDS:
+            rows = self._mirror[name]
+            rows[:] = np.stack([getattr(m, name) for m in self.models]).reshape(rows.shape)
+            getattr(self._m, name).assign(rows)
         self._ground = dev_model.geom(GROUND_NAME).id
         self._xfrc = np.zeros((self.n, self.nbody, 6), dtype=np.float32)
-        self.sync(np.arange(self.n))
 
-    def sync(self, ids: np.ndarray) -> None:
-        """Copy the batched fields (:data:`BATCHED_FIELDS`) of envs ``ids`` from their host
-        models to the device, through host mirrors of the device rows (no read-back)."""
+    def write_models(self, ids: np.ndarray, name: str, index: tuple, values: np.ndarray) -> None:
+        """As :meth:`BatchedPhysics.write_models`, and the device rows of the worlds ``ids``
+        (a field of :data:`BATCHED_FIELDS`) in one array write and one upload."""
+        if name not in BATCHED_FIELDS:
+            raise ValueError(f"{name} is not a batched field of the warp model")
+        super().write_models(ids, name, index, values)
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size == 0:
             return
-        for name in BATCHED_FIELDS:
-            rows = self._mirror[name]
-            rows[ids] = np.stack([getattr(self.models[i], name) for i in ids]).reshape(
-                (len(ids), *rows.shape[1:])
-            )
-            getattr(self._m, name).assign(rows)
+        rows = self._mirror[name]
+        part = rows[ids]
+        target = part[(slice(None), *index)]
+        v = np.asarray(values)
+        part[(slice(None), *index)] = v.reshape(len(ids), *(1,) * (target.ndim - v.ndim), *v.shape[1:])
+        rows[ids] = part
+        getattr(self._m, name).assign(rows)
 
     def set_tiles(self, ids: np.ndarray, bank: TerrainBank, tiles: np.ndarray) -> None:
         """Put the worlds of envs ``ids`` on tiles ``tiles`` (k,): their ground geom points at the

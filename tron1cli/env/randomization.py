@@ -1,7 +1,9 @@
 """Domain randomisation (paper Table III) and pushes: per-env, seeded, each term switchable.
 
 Every env owns its MjModel, so physical parameters are written into that env's model at reset
-and hold for the episode:
+and hold for the episode; the randomiser samples each term for all the envs being reset at once
+and hands the physics one (k, ...) array per model field (:meth:`BatchedPhysics.write_models`;
+the warp backend writes its batched device rows from it in one operation):
 
 =================  =====================================  ==========================================
 term               range                                  where it acts
@@ -39,10 +41,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from tron1cli.env import robot
+from tron1cli.env.physics import BatchedPhysics
 
 ALL_TERMS = (
     "payload",
@@ -138,30 +140,30 @@ def damping_ratio_for_restitution(e: np.ndarray) -> np.ndarray:
     return -L / np.sqrt(np.pi**2 + L**2)
 
 
-def impact_solref(nominal: np.ndarray, zeta: float) -> tuple[float, float]:
-    """MuJoCo ``solref`` with damping ratio ``zeta`` and the stiffness of ``nominal`` (time constant,
-    damping ratio 1): MuJoCo's stiffness grows as 1 / (timeconst zeta)^2, so the time constant is
-    divided by ``zeta`` to keep the contact as stiff as the nominal one and lower only its damping."""
-    return float(nominal[0]) / zeta, zeta
+def impact_solref(nominal: np.ndarray, zeta: np.ndarray) -> np.ndarray:
+    """MuJoCo ``solref`` rows (k, 2) with damping ratios ``zeta`` (k,) and the stiffness of
+    ``nominal`` (time constant, damping ratio 1): MuJoCo's stiffness grows as
+    1 / (timeconst zeta)^2, so the time constant is divided by ``zeta`` to keep the contact as
+    stiff as the nominal one and lower only its damping."""
+    zeta = np.asarray(zeta, dtype=np.float64)
+    return np.stack([float(nominal[0]) / zeta, zeta], axis=-1)
 
 
 class Randomizer:
-    """Samples and applies the configured terms to the envs' own models.
+    """Samples and applies the configured terms to the envs' own models, through ``physics``.
 
     Attributes (N rows): ``delay_steps`` physics substeps before a new target acts,
     ``camera_offset`` (N, 3) m in the base frame, ``camera_pitch`` (N,) rad added to the mount,
     ``camera_fov_delta`` (N,) deg added to the camera's vertical field of view.
     """
 
-    def __init__(
-        self, cfg: RandomizationConfig, models: list[mujoco.MjModel], sim_dt: float, nsub: int
-    ) -> None:
+    def __init__(self, cfg: RandomizationConfig, physics: BatchedPhysics, sim_dt: float, nsub: int) -> None:
         self.cfg = cfg
-        self.models = models
+        self.physics = physics
         self.sim_dt = sim_dt
         self.nsub = nsub
-        n = len(models)
-        m0 = models[0]
+        n = physics.n
+        m0 = physics.models[0]
         self.base = m0.body("base").id
         self.nominal_mass = float(m0.body_mass[self.base])
         self.nominal_ipos = m0.body_ipos[self.base].copy()
@@ -178,9 +180,8 @@ class Randomizer:
         self._impact_left = np.zeros((n, len(self.contact_geoms)), dtype=np.int64)
         self.nominal_solref = m0.geom_solref[self.contact_geoms[0]].copy()
         self._gated = cfg.on("restitution") and cfg.restitution_model == "impact"
-        if self._gated:
-            for m in models:  # the foot's damping ratio, not a mix with the ground's, sets the contact's
-                m.geom_solmix[self.ground] = 1e-9
+        if self._gated:  # the foot's damping ratio, not a mix with the ground's, sets the contact's
+            physics.write_models(np.arange(n), "geom_solmix", (self.ground,), np.full(n, 1e-9))
 
     def apply(self, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Draw new parameters for envs ``ids`` and write them into their models."""
@@ -209,8 +210,8 @@ class Randomizer:
                 )
                 self._bouncy[ids] = False
                 self._impact_left[ids] = 0
-                for i in ids:
-                    self.models[i].geom_solref[self.contact_geoms] = self.nominal_solref
+                nominal = np.broadcast_to(self.nominal_solref, (k, 2))
+                self.physics.write_models(ids, "geom_solref", (self.contact_geoms,), nominal)
         kp = u(c.kp_scale) if c.on("kp") else ones
         kd = u(c.kd_scale) if c.on("kd") else ones
         strength = u(c.motor_strength) if c.on("motor_strength") else ones
@@ -221,19 +222,19 @@ class Randomizer:
             self.camera_pitch[ids] = np.radians(rng.uniform(-c.camera_pitch_deg, c.camera_pitch_deg, k))
         if c.on("camera_fov"):
             self.camera_fov_delta[ids] = rng.uniform(-c.camera_fov_deg, c.camera_fov_deg, k)
-        for j, i in enumerate(ids):
-            m = self.models[i]
-            m.body_mass[self.base] = self.nominal_mass + payload[j]
-            m.body_ipos[self.base] = self.nominal_ipos + shift[j]
-            if friction is not None:
-                m.geom_friction[[self.ground, *self.contact_geoms], 0] = friction[j]
-            if zeta is not None:
-                m.geom_solref[[self.ground, *self.contact_geoms]] = (0.02, zeta[j])
-            g = strength[j]
-            m.actuator_gainprm[:, 0] = robot.KP * kp[j] * g
-            m.actuator_biasprm[:, 1] = -robot.KP * kp[j] * g
-            m.actuator_biasprm[:, 2] = -robot.KD * kd[j] * g
-            m.actuator_forcerange[:] = np.array([-1.0, 1.0]) * robot.TORQUE_LIMIT * g
+        write = self.physics.write_models
+        touching = [self.ground, *self.contact_geoms]
+        write(ids, "body_mass", (self.base,), self.nominal_mass + payload)
+        write(ids, "body_ipos", (self.base,), self.nominal_ipos + shift)
+        if friction is not None:
+            write(ids, "geom_friction", (touching, 0), friction)
+        if zeta is not None:
+            write(ids, "geom_solref", (touching,), np.stack([np.full(k, 0.02), zeta], axis=-1))
+        write(ids, "actuator_gainprm", (slice(None), 0), robot.KP * kp * strength)
+        write(ids, "actuator_biasprm", (slice(None), 1), -robot.KP * kp * strength)
+        write(ids, "actuator_biasprm", (slice(None), 2), -robot.KD * kd * strength)
+        limit = robot.TORQUE_LIMIT * strength
+        write(ids, "actuator_forcerange", (slice(None),), np.stack([-limit, limit], axis=-1))
         self.values = {
             "payload": payload,
             "friction": friction if friction is not None else np.full(k, np.nan),
@@ -242,27 +243,29 @@ class Randomizer:
             "motor_strength": strength,
         }
 
-    def gate_restitution(self, foot_in_contact: np.ndarray, foot_vz: np.ndarray) -> np.ndarray:
+    def gate_restitution(self, foot_in_contact: np.ndarray, foot_vz: np.ndarray) -> None:
         """Before a policy step: a foot in the air descending faster than the bounce threshold
         (``foot_vz`` (N, F) m/s, world z) bounces on its impact, which may start in this step
         and go on into the next (:data:`IMPACT_STEPS` policy steps in all); every other foot
-        contact stays critically damped. Writes the feet's damping ratios that changed and
-        returns the envs whose models it wrote (sorted ids)."""
+        contact stays critically damped. Writes the feet's damping ratios that changed, one
+        array per foot."""
         if not self._gated:
-            return np.zeros(0, dtype=np.int64)
+            return
         fast = -foot_vz > self.cfg.bounce_threshold_mps
         arm = ~foot_in_contact & fast & (self.impact_zeta < 1.0)[:, None]
         self._impact_left = np.where(
             arm, IMPACT_STEPS, np.where(foot_in_contact, np.maximum(self._impact_left - 1, 0), 0)
         )
         want = self._impact_left > 0
-        envs, feet = np.nonzero(want != self._bouncy)
-        for i, f in zip(envs, feet, strict=True):
-            self.models[i].geom_solref[self.contact_geoms[f]] = (
-                impact_solref(self.nominal_solref, self.impact_zeta[i]) if want[i, f] else self.nominal_solref
-            )
+        for f, geom in enumerate(self.contact_geoms):
+            envs = np.flatnonzero(want[:, f] != self._bouncy[:, f])
+            if envs.size:
+                zeta = self.impact_zeta[envs]
+                solref = np.where(
+                    want[envs, f, None], impact_solref(self.nominal_solref, zeta), self.nominal_solref
+                )
+                self.physics.write_models(envs, "geom_solref", (geom,), solref)
         self._bouncy = want
-        return np.unique(envs)
 
 
 @dataclass(frozen=True)
