@@ -24,6 +24,8 @@ def test_paper_preset_is_the_papers_method_and_sizes():
 
 def test_flat_preset_is_the_quick_start():
     p = make_preset("flat")
-    assert p.terrain == "flat" and p.gait_prior and dict(p.critic_weights) == {"stable": 0.5}
+    assert p.terrain == "flat" and p.gait_prior and dict(p.critic_weights) == {"stable": 0.25}
+    assert dict(p.reward_weights) == {"flat_orientation": -5.0}
+    assert dict(make_preset("perceptive").critic_weights) == {"stable": 0.5}
     assert not p.perception and not p.randomization.terms and not p.pushes.enabled
     assert (p.num_envs, p.iterations) == (1024, 300)

@@ -192,9 +192,9 @@ def test_train_streams_an_episode_to_rerun(tmp_path):
 def test_default_critic_weights_follow_the_groups(tmp_path):
     r = tron1("train", *SMALL, "--iterations", "1", "--run-dir", str(tmp_path / "a"))
     assert r.returncode == 0, r.stderr
-    assert json.loads((tmp_path / "a" / "config.json").read_text())["learner"]["critic_weights"] == {
-        "stable": 0.5
-    }
+    c = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert c["learner"]["critic_weights"] == {"stable": 0.25}  # the flat preset's
+    assert c["reward"]["terms"]["flat_orientation"] == {"weight": -5.0, "group": "loco", "gated": False}
     r = tron1(
         "train", *SMALL, "--iterations", "1", "--ablation", "single-critic", "--run-dir", str(tmp_path / "b")
     )

@@ -18,6 +18,15 @@ DEFAULT_STABLE_WEIGHT = 0.5
 1; the paper gives none, equal weights are the natural reading): with 1, the 20-min flat run
 tracked 0.43 m/s; with 0.5, about 0.3 m/s (README, policies/README.md)."""
 
+FLAT_STABLE_WEIGHT = 0.25
+"""The flat preset's stability weight: with the tilt penalty below, 0.25 took ``tron1 eval``
+success after 90 iterations from 69 % (0.5) to 95 % (README, "Learning to walk on flat")."""
+
+FLAT_REWARD_WEIGHTS = {"flat_orientation": -5.0}
+"""The flat preset's extra reward term: base tilt, -5 a second at sin^2 = 1 (README, Reward). The
+paper's reward alone leaned the first policies over until they fell; with it ``tron1 eval``
+success after 90 iterations went from 23 % to 69 %."""
+
 
 @dataclass(frozen=True)
 class TrainPreset:
@@ -56,8 +65,13 @@ class TrainPreset:
 
 
 def flat() -> TrainPreset:
-    """The quick start: blind, on flat ground, nominal robot, gait prior on (20 min on 2 cores)."""
-    return TrainPreset(name="flat")
+    """The quick start: blind, on flat ground, nominal robot, gait prior on, the tilt penalty and
+    the stability critic at 0.25 (walks after 240 iterations, 8 minutes on 2 cores)."""
+    return TrainPreset(
+        name="flat",
+        critic_weights=MappingProxyType({"stable": FLAT_STABLE_WEIGHT}),
+        reward_weights=MappingProxyType(FLAT_REWARD_WEIGHTS),
+    )
 
 
 def perceptive(terrain: str = "mixed") -> TrainPreset:
