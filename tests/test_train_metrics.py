@@ -44,3 +44,24 @@ def test_the_rolling_window_survives_a_checkpoint_round_trip():
         for figure in ("survival", "episode_length_s"):
             assert after[f"{g}/{figure}"] == before[f"{g}/{figure}"]
     assert before["teacher/survival"] == 0.5 and before["student/survival"] == pytest.approx(2 / 3)
+
+
+def test_falls_per_minute_count_this_iterations_falls_over_its_robot_time():
+    """Hand count: 2 teachers and 3 students stepped 50 times at 0.02 s (teachers 2 robot-seconds,
+    students 3); one teacher fell (a staggered episode: still a fall of this policy), one student
+    fell, one timed out."""
+    stats = EpisodeStats(step_s=0.02)
+    for _ in range(50):
+        stats.add_step(np.full(5, 0.1), n_teacher=2)
+    episode = {
+        "time_out": np.array([False, False, True]),
+        "length_s": np.array([0.5, 3.0, 20.0]),
+        "staggered": np.array([True, False, False]),
+    }
+    stats.add_episodes(np.array([1, 3, 4]), episode, n_teacher=2)
+    out = stats.summary()
+    assert out["teacher/falls_per_min"] == pytest.approx(1 / (2.0 / 60.0))
+    assert out["student/falls_per_min"] == pytest.approx(1 / (3.0 / 60.0))
+    assert out["student/vel_tracking_error"] == pytest.approx(0.1)
+    again = stats.summary()  # a new iteration starts from zero
+    assert np.isnan(again["teacher/falls_per_min"]) and np.isnan(again["student/falls_per_min"])

@@ -572,7 +572,8 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
     t.add_column("teacher", justify="right")
     t.add_column("student", justify="right")
     for key, label in (
-        ("survival", "survival (share of episodes)"),
+        ("survival", "survival (share of the last 1000 episodes)"),
+        ("falls_per_min", "falls per robot-minute, last iteration"),
         ("episode_length_s", "episode length (s)"),
         ("vel_tracking_error", "velocity tracking error (m/s)"),
     ):

@@ -17,13 +17,21 @@ class EpisodeStats:
     unstable simulation; length_s: mean episode length (s). Reward-term sums are averaged over the
     episodes that finished during the current iteration. The first episode of each env after a
     staggered reset (cut short by its random start on the clock) is counted in ``episodes`` only.
+
+    A 20 s episode that times out at iteration k began about 40 iterations earlier, so survival
+    lags the policy; ``falls_per_min`` does not: the episodes of this iteration that did not end
+    by time-out (staggered ones too) per minute of robot time the group spent in it
+    (``step_s``: the policy step, s).
     """
 
-    def __init__(self, window: int = 1000) -> None:
+    def __init__(self, window: int = 1000, step_s: float = 0.02) -> None:
         self.outcomes = {g: deque(maxlen=window) for g in GROUPS}
         self.lengths = {g: deque(maxlen=window) for g in GROUPS}
+        self.step_s = step_s
         self._terms: dict[str, list[np.ndarray]] = {}
         self._track: dict[str, list[float]] = {g: [] for g in GROUPS}
+        self._falls = {g: 0 for g in GROUPS}
+        self._robot_steps = {g: 0 for g in GROUPS}
         self.episodes = 0
 
     def add_episodes(self, ids: np.ndarray, episode: dict[str, np.ndarray], n_teacher: int) -> None:
@@ -36,6 +44,9 @@ class EpisodeStats:
         for g, mask in (("teacher", full & ~is_student), ("student", full & is_student)):
             self.outcomes[g].extend(episode["time_out"][mask].tolist())
             self.lengths[g].extend(episode["length_s"][mask].tolist())
+        fell = ~episode["time_out"]
+        self._falls["teacher"] += int((fell & ~is_student).sum())
+        self._falls["student"] += int((fell & is_student).sum())
         for k, v in episode.items():
             if k.startswith("reward/") and full.any():
                 self._terms.setdefault(k, []).append(v[full])
@@ -57,10 +68,12 @@ class EpisodeStats:
             self.lengths[g].clear()
             self.lengths[g].extend(sd[f"{g}/lengths"].tolist())
 
-    def add_tracking(self, err: np.ndarray, n_teacher: int) -> None:
-        """Record one step's velocity tracking error (N,) in m/s."""
+    def add_step(self, err: np.ndarray, n_teacher: int) -> None:
+        """Record one step of every env: its velocity tracking error (N,) in m/s."""
         self._track["teacher"].append(float(err[:n_teacher].mean()) if n_teacher else np.nan)
         self._track["student"].append(float(err[n_teacher:].mean()) if n_teacher < len(err) else np.nan)
+        self._robot_steps["teacher"] += n_teacher
+        self._robot_steps["student"] += len(err) - n_teacher
 
     def summary(self) -> dict[str, float]:
         """Figures of this iteration; clears the per-iteration accumulators."""
@@ -74,7 +87,9 @@ class EpisodeStats:
             out[f"{g}/vel_tracking_error"] = (
                 float(np.mean(self._track[g])) if self._track[g] else float("nan")
             )
-            self._track[g] = []
+            minutes = self._robot_steps[g] * self.step_s / 60.0
+            out[f"{g}/falls_per_min"] = self._falls[g] / minutes if minutes else float("nan")
+            self._track[g], self._falls[g], self._robot_steps[g] = [], 0, 0
         for k, chunks in self._terms.items():  # "reward/<term>" -> "episode_reward/<term>"
             out["episode_" + k] = float(np.concatenate(chunks).mean())
         self._terms = {}

@@ -246,7 +246,7 @@ class Trainer:
             self._trim_metrics()
         #: the iteration of the checkpoint on disk (None before the first save)
         self.saved_iteration: int | None = self.iteration if state is not None else None
-        self.stats = EpisodeStats()
+        self.stats = EpisodeStats(step_s=self.env.policy_dt)
         if state is not None and "episode_stats" in state:  # older checkpoints: start empty
             self.stats.load_state_dict(state["episode_stats"])
 
@@ -373,7 +373,7 @@ class Trainer:
             for g, r in res.rewards.items():
                 group_reward[g] += float(r.mean())
             self.stats.add_episodes(np.flatnonzero(res.done), res.episode, n_t)
-            self.stats.add_tracking(tracking_error(env), n_t)
+            self.stats.add_step(tracking_error(env), n_t)
             obs = res.obs
         t1 = time.perf_counter()
         learn_stats = learner.update(obs)
