@@ -231,8 +231,8 @@ class Randomizer:
         if zeta is not None:
             write(ids, "geom_solref", (touching,), np.stack([np.full(k, 0.02), zeta], axis=-1))
         write(ids, "actuator_gainprm", (slice(None), 0), robot.KP * kp * strength)
-        write(ids, "actuator_biasprm", (slice(None), 1), -robot.KP * kp * strength)
-        write(ids, "actuator_biasprm", (slice(None), 2), -robot.KD * kd * strength)
+        bias = np.stack([-robot.KP * kp * strength, -robot.KD * kd * strength], axis=-1)
+        write(ids, "actuator_biasprm", (slice(None), [1, 2]), bias)
         limit = robot.TORQUE_LIMIT * strength
         write(ids, "actuator_forcerange", (slice(None),), np.stack([-limit, limit], axis=-1))
         self.values = {
@@ -247,8 +247,8 @@ class Randomizer:
         """Before a policy step: a foot in the air descending faster than the bounce threshold
         (``foot_vz`` (N, F) m/s, world z) bounces on its impact, which may start in this step
         and go on into the next (:data:`IMPACT_STEPS` policy steps in all); every other foot
-        contact stays critically damped. Writes the feet's damping ratios that changed, one
-        array per foot."""
+        contact stays critically damped. Writes the feet's contact softness of the envs where a
+        foot changed, in one array."""
         if not self._gated:
             return
         fast = -foot_vz > self.cfg.bounce_threshold_mps
@@ -257,14 +257,11 @@ class Randomizer:
             arm, IMPACT_STEPS, np.where(foot_in_contact, np.maximum(self._impact_left - 1, 0), 0)
         )
         want = self._impact_left > 0
-        for f, geom in enumerate(self.contact_geoms):
-            envs = np.flatnonzero(want[:, f] != self._bouncy[:, f])
-            if envs.size:
-                zeta = self.impact_zeta[envs]
-                solref = np.where(
-                    want[envs, f, None], impact_solref(self.nominal_solref, zeta), self.nominal_solref
-                )
-                self.physics.write_models(envs, "geom_solref", (geom,), solref)
+        envs = np.flatnonzero((want != self._bouncy).any(axis=1))
+        if envs.size:  # both feet of those envs: the unchanged one is written its own value
+            impact = impact_solref(self.nominal_solref, self.impact_zeta[envs])  # (k, 2)
+            solref = np.where(want[envs, :, None], impact[:, None, :], self.nominal_solref)  # (k, F, 2)
+            self.physics.write_models(envs, "geom_solref", (self.contact_geoms,), solref)
         self._bouncy = want
 
 

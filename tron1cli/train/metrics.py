@@ -41,12 +41,11 @@ class EpisodeStats:
         self.episodes += len(ids)
         full = ~episode["staggered"]
         is_student = ids >= n_teacher
-        for g, mask in (("teacher", full & ~is_student), ("student", full & is_student)):
+        for g, in_group in (("teacher", ~is_student), ("student", is_student)):
+            mask = full & in_group
             self.outcomes[g].extend(episode["time_out"][mask].tolist())
             self.lengths[g].extend(episode["length_s"][mask].tolist())
-        fell = ~episode["time_out"]
-        self._falls["teacher"] += int((fell & ~is_student).sum())
-        self._falls["student"] += int((fell & is_student).sum())
+            self._falls[g] += int((in_group & ~episode["time_out"]).sum())
         for k, v in episode.items():
             if k.startswith("reward/") and full.any():
                 self._terms.setdefault(k, []).append(v[full])
