@@ -1,6 +1,7 @@
 """The ``tron1`` command as a user runs it: exit codes, one-line errors, JSON output."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -24,6 +25,20 @@ def test_help_lists_only_working_commands():
     r = tron1("--help")
     assert r.returncode == 0
     assert "bench" in r.stdout
+
+
+def test_help_shows_the_defaults_written_in_brackets():
+    """Help texts spell computed defaults as "[default: ...]"; rich markup once ate them as tags."""
+    r = subprocess.run(
+        [sys.executable, "-m", "tron1cli", "train", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "COLUMNS": "400"},
+    )
+    assert r.returncode == 0
+    assert "[default: 512 on flat ground, 1024 elsewhere]" in r.stdout
+    assert "[default: the cores available]" in r.stdout
 
 
 @pytest.mark.parametrize(

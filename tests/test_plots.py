@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from tron1cli.viz.plots import (
     campaign_curves,
     first_reached,
@@ -31,7 +33,8 @@ def test_plots_write_pngs(tmp_path):
     ]
     (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
     pngs = [
-        training_curves({"a": run}, tmp_path / "curves.png", mark_minutes=3.0),
+        training_curves({"a": run}, tmp_path / "curves.png", mark=3.0),
+        training_curves({"a": run}, tmp_path / "steps.png", x="env_steps"),
         success_by_speed(
             {"a": {0.5: {"mean": 0.9, "std": 0.1}, 1.0: {"mean": 0.5, "std": None}}}, tmp_path / "s.png"
         ),
@@ -41,6 +44,8 @@ def test_plots_write_pngs(tmp_path):
     ]
     for p in pngs:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match="x must be"):
+        training_curves({"a": run}, tmp_path / "bad.png", x="iterations")
 
 
 def test_campaign_phases_are_one_cumulative_series(tmp_path):

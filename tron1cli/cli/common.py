@@ -95,7 +95,7 @@ def backend_option():
         "mujoco",
         "--backend",
         help="Physics engine: mujoco (MuJoCo on the CPU) or warp (MuJoCo Warp on the GPU when warp "
-        "sees one, else on its CPU device; pip install -e '.\\[warp]').",
+        "sees one, else on its CPU device; pip install -e '.[warp]').",
     )
 
 

@@ -31,6 +31,7 @@ app = typer.Typer(
     invoke_without_command=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",  # help texts say "[default: ...]"; rich markup would eat it as a tag
 )
 
 

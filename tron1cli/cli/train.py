@@ -29,7 +29,7 @@ from tron1cli.cli.common import (
     terrain_help,
     threads_option,
 )
-from tron1cli.config.presets import PRESETS
+from tron1cli.config.presets import PRESETS, flat, perceptive
 from tron1cli.env.randomization import ALL_TERMS
 
 #: the options a preset sets; given explicitly, they override it
@@ -66,7 +66,15 @@ def train(
         show_default=False,
     ),
     terrain: str = typer.Option("flat", "--terrain", "-t", help=terrain_help()),
-    envs: int = typer.Option(1024, "--envs", "-n", min=2, help="Parallel environments (teacher + student)."),
+    envs: int | None = typer.Option(
+        None,
+        "--envs",
+        "-n",
+        min=2,
+        help=f"Parallel environments (teacher + student) [default: {flat().num_envs} on flat ground, "
+        f"{perceptive().num_envs} elsewhere].",
+        show_default=False,
+    ),
     iterations: int = typer.Option(
         None,
         "--iterations",

@@ -31,23 +31,31 @@ def first_reached(
 
 
 def training_curves(
-    runs: dict[str, Path], out_png: Path, group: str = "student", mark_minutes: float | None = None
+    runs: dict[str, Path],
+    out_png: Path,
+    group: str = "student",
+    mark: float | None = None,
+    x: str = "minutes",
 ) -> Path:
-    """Survival and velocity tracking error of ``group`` against wall-clock minutes, one line per run
-    (``mark_minutes``: a vertical line, e.g. at a time budget)."""
+    """Survival and velocity tracking error of ``group`` against wall-clock minutes (``x="minutes"``)
+    or millions of env steps (``x="env_steps"``: runs on machines of other speeds compare), one line
+    per run (``mark``: a vertical line at that x, e.g. at a time budget)."""
+    if x not in ("minutes", "env_steps"):
+        raise ValueError(f"x must be 'minutes' or 'env_steps', got {x!r}")
+    xlabel = "wall-clock minutes" if x == "minutes" else "env steps (millions)"
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     for label, run_dir in runs.items():
         rows = read_metrics(run_dir)
-        t = [m["wall_s"] / 60.0 for m in rows]
+        t = [m["wall_s"] / 60.0 if x == "minutes" else m["env_steps"] / 1e6 for m in rows]
         ax1.plot(t, [m.get(f"{group}/survival") for m in rows], label=label)
         ax2.plot(t, [m.get(f"{group}/vel_tracking_error") for m in rows], label=label)
     ax1.axhline(0.9, color="grey", ls="--", lw=0.8)
     ax2.axhline(0.3, color="grey", ls="--", lw=0.8)
-    ax1.set(xlabel="wall-clock minutes", ylabel=f"{group} survival (share of episodes)", ylim=(0, 1.02))
-    ax2.set(xlabel="wall-clock minutes", ylabel=f"{group} velocity tracking error (m/s)", ylim=(0, None))
+    ax1.set(xlabel=xlabel, ylabel=f"{group} survival (share of episodes)", ylim=(0, 1.02))
+    ax2.set(xlabel=xlabel, ylabel=f"{group} velocity tracking error (m/s)", ylim=(0, None))
     for ax in (ax1, ax2):
-        if mark_minutes is not None:
-            ax.axvline(mark_minutes, color="k", ls=":", lw=0.8)
+        if mark is not None:
+            ax.axvline(mark, color="k", ls=":", lw=0.8)
         ax.grid(alpha=0.3)
         ax.legend()
     return _save(fig, out_png)
