@@ -30,6 +30,13 @@ def first_reached(
     return out
 
 
+#: x axis name -> (label, metrics key, divisor)
+_X_AXES = {
+    "minutes": ("wall-clock minutes", "wall_s", 60.0),
+    "env_steps": ("env steps (millions)", "env_steps", 1e6),
+}
+
+
 def training_curves(
     runs: dict[str, Path],
     out_png: Path,
@@ -40,13 +47,14 @@ def training_curves(
     """Survival and velocity tracking error of ``group`` against wall-clock minutes (``x="minutes"``)
     or millions of env steps (``x="env_steps"``: runs on machines of other speeds compare), one line
     per run (``mark``: a vertical line at that x, e.g. at a time budget)."""
-    if x not in ("minutes", "env_steps"):
-        raise ValueError(f"x must be 'minutes' or 'env_steps', got {x!r}")
-    xlabel = "wall-clock minutes" if x == "minutes" else "env steps (millions)"
+    try:
+        xlabel, key, scale = _X_AXES[x]
+    except KeyError:
+        raise ValueError(f"x must be one of {', '.join(_X_AXES)}, got {x!r}") from None
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     for label, run_dir in runs.items():
         rows = read_metrics(run_dir)
-        t = [m["wall_s"] / 60.0 if x == "minutes" else m["env_steps"] / 1e6 for m in rows]
+        t = [m[key] / scale for m in rows]
         ax1.plot(t, [m.get(f"{group}/survival") for m in rows], label=label)
         ax2.plot(t, [m.get(f"{group}/vel_tracking_error") for m in rows], label=label)
     ax1.axhline(0.9, color="grey", ls="--", lw=0.8)
