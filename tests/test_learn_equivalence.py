@@ -1,19 +1,23 @@
 """The learner's shortcuts compute what the plain computation does, to float tolerance.
 
-Each test holds a plain reference (masked teacher rows, one CNN pass per frame) and checks the
-learner's faster path against it: the PPO loss and its gradients on a fixed rollout, the cached
-CNN features of held 30 Hz frames at collection, and the shared features of the image path.
+Each test holds a plain reference (masked teacher rows, one CNN pass per frame, torch's ELU, the
+unfused Adam) and checks the learner's faster path against it: the PPO loss and its gradients on a
+fixed rollout, the cached CNN features of held 30 Hz frames at collection, the shared features of
+the image path, the ELU, and whole updates.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import replace
 
 import numpy as np
 import torch
 from test_learn_cts import GROUPS, HW, N, P, fake_obs, make
+from torch import nn
 
 from tron1cli.learn import ObsDims
+from tron1cli.learn.models import ELU
 from tron1cli.learn.ppo import _LOG_SQRT_2PI, _gaussian_log_prob
 
 torch.set_num_threads(1)
@@ -126,3 +130,60 @@ def test_bf16_update_moves_the_weights_as_fp32_does():
     assert a.norm() > 0
     assert torch.nn.functional.cosine_similarity(a, b, dim=0) > 0.999
     assert (a - b).norm() / a.norm() < 0.05
+
+
+def test_elu_matches_torch_elu_in_value_and_gradient():
+    special = torch.tensor([0.0, -0.0, 1e-8, -1e-8, 1e-3, -1e-3, -20.0, -100.0, 50.0, 88.0])
+    x = torch.cat([special, torch.randn(4000) * 3.0]).requires_grad_()
+    x_ref = x.detach().clone().requires_grad_()
+    y, y_ref = ELU()(x), nn.functional.elu(x_ref)
+    torch.testing.assert_close(y, y_ref, rtol=1e-6, atol=1e-7)
+    w = torch.randn_like(y)
+    (y * w).sum().backward()
+    (y_ref * w).sum().backward()
+    torch.testing.assert_close(x.grad, x_ref.grad, rtol=1e-6, atol=1e-7)
+    with torch.no_grad():  # collection's path, without autograd
+        torch.testing.assert_close(ELU()(x), y_ref, rtol=1e-6, atol=1e-7)
+    edges = ELU()(torch.tensor([float("inf"), float("-inf"), float("nan")]))
+    assert edges[0] == float("inf") and edges[1] == -1.0 and torch.isnan(edges[2])
+
+
+def _as_before(learner):
+    """The learner with the plain pieces its fast ones replace: torch's ELU modules, unfused Adam."""
+    for module in list(learner.model.modules()):
+        for name, child in list(module.named_children()):
+            if isinstance(child, ELU):
+                setattr(module, name, nn.ELU())
+    cfg, m = learner.cfg, learner.model
+    learner.opt_ppo = torch.optim.Adam(m.ppo_parameters(), lr=cfg.lr, foreach=False)
+    learner.opt_rec = torch.optim.Adam(m.estimator_parameters(), lr=cfg.rec_lr, foreach=False)
+    return learner
+
+
+def test_updates_match_those_with_torch_elu_and_the_unfused_adam():
+    fast, plain = make(DIMS, seed=7), _as_before(make(DIMS, seed=7))
+    assert not any(isinstance(mod, nn.ELU) for mod in fast.model.modules())
+    for learner in (fast, plain):
+        rng = np.random.default_rng(8)
+        for _ in range(2):  # the second rollout is collected by the updated networks
+            learner.update(rollout(learner, rng))
+    a, b = fast.model.state_dict(), plain.model.state_dict()
+    moved = [k for k in a if not torch.equal(a[k], make(DIMS, seed=7).model.state_dict()[k])]
+    assert "actor.0.weight" in moved and "est_h.cnn.conv.0.weight" in moved
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5, msg=k)
+
+
+def test_a_checkpoint_of_the_unfused_adam_loads_into_a_fused_one_and_trains_on():
+    saved = make(DIMS, seed=9)
+    saved.update(rollout(saved, np.random.default_rng(10)))
+    sd = copy.deepcopy(saved.state_dict())  # as read from disk: no tensor shared with ``saved``
+    for key in ("optim_ppo", "optim_rec"):  # as checkpoints written before the fused update say
+        for group in sd[key]["param_groups"]:
+            group["fused"] = False
+    learner = make(DIMS, seed=9)
+    learner.load_state_dict(sd)
+    assert all(g["fused"] for opt in (learner.opt_ppo, learner.opt_rec) for g in opt.param_groups)
+    learner.update(rollout(learner, np.random.default_rng(11)))
+    saved.update(rollout(saved, np.random.default_rng(11)))
+    torch.testing.assert_close(learner.model.state_dict(), saved.model.state_dict(), rtol=1e-5, atol=1e-6)
