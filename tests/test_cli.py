@@ -90,6 +90,25 @@ def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
     assert res["train_steps_per_s"] < min(res["collect_steps_per_s"], res["learn_steps_per_s"])
 
 
+def test_bench_train_times_the_env_count_train_would_use(monkeypatch):
+    from typer.testing import CliRunner
+
+    import tron1cli.benchmark
+    from tron1cli.cli.main import app
+    from tron1cli.config.presets import flat, perceptive
+
+    timed = []
+
+    def record(cfg, **kwargs):  # stands in for the timing itself: the config is what is checked
+        timed.append(cfg.env.num_envs)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(tron1cli.benchmark, "run_train_bench", record)
+    for args in ([], ["--terrain", "stairs"], ["--envs", "16"]):
+        assert CliRunner().invoke(app, ["bench", "--train", *args]).exit_code == 0
+    assert timed == [flat().num_envs, perceptive().num_envs, 16]
+
+
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a GPU")
 def test_device_cuda_without_a_gpu_is_one_line():
     r = tron1("train", "--device", "cuda", "--iterations", "1")

@@ -28,5 +28,6 @@ def test_flat_preset_is_the_quick_start():
     assert dict(p.reward_weights) == {"flat_orientation": -5.0}
     assert dict(make_preset("perceptive").critic_weights) == {"stable": 0.5}
     assert not p.perception and not p.randomization.terms and not p.pushes.enabled
-    assert (p.num_envs, p.iterations) == (512, 300)
-    assert make_preset("perceptive").num_envs == 1024
+    assert (p.num_envs, p.steps_per_env, p.iterations) == (512, 12, 600)
+    q = make_preset("perceptive")
+    assert (q.num_envs, q.steps_per_env, q.iterations) == (1024, 24, 300)

@@ -15,6 +15,7 @@ from tron1cli.cli.common import (
     err,
     fail,
     out,
+    preset_default,
     print_json,
     resolve_device,
     resolve_precision,
@@ -22,9 +23,20 @@ from tron1cli.cli.common import (
     threads_option,
 )
 
+_RAW_ENVS = 1024
+"""Envs of the env-rate benchmark (without --train)."""
+
 
 def bench(
-    envs: int = typer.Option(1024, "--envs", "-n", min=1, help="Number of parallel environments."),
+    envs: int | None = typer.Option(
+        None,
+        "--envs",
+        "-n",
+        min=1,
+        help=f"Number of parallel environments [default: {_RAW_ENVS}; with --train, tron1 train's: "
+        f"{preset_default('num_envs')}].",
+        show_default=False,
+    ),
     steps: int = typer.Option(100, "--steps", min=1, help="Timed policy steps (after 10 warm-up steps)."),
     threads: int = threads_option("Physics (and with --train torch) threads"),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Random seed."),
@@ -70,6 +82,7 @@ def bench(
         precision = resolve_precision(precision, device)
         _bench_train(envs, threads, seed, terrain, rounds, device, precision, backend, json_out)
         return
+    envs = envs or _RAW_ENVS
     with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
         res = run_bench(
             envs,
@@ -114,7 +127,7 @@ _RAW = {"mujoco": "mujoco.rollout", "warp": "mujoco_warp.step"}
 
 
 def _bench_train(
-    envs: int,
+    envs: int | None,
     threads: int,
     seed: int,
     terrain: str,
@@ -131,7 +144,8 @@ def _bench_train(
 
     tune_glibc_malloc()
     try:  # the trainer sets torch's threads from the run's nthread
-        preset = replace(for_terrain(terrain), num_envs=envs)
+        preset = for_terrain(terrain)
+        preset = replace(preset, num_envs=envs or preset.num_envs)
         cfg = run_config(preset, seed=seed, nthread=threads, precision=precision)
     except ValueError as e:
         fail(str(e), 2)

@@ -24,6 +24,14 @@ def terrain_help(extra: tuple[str, ...] = ()) -> str:
     return terrain_choices(extra) + "."
 
 
+def preset_default(field: str) -> str:
+    """A preset setting as help texts show its default: the flat preset's value and the perceptive
+    one's (``"512 on flat ground, 1024 elsewhere"``)."""
+    from tron1cli.config.presets import flat, perceptive
+
+    return f"{getattr(flat(), field)} on flat ground, {getattr(perceptive(), field)} elsewhere"
+
+
 def fail(message: str, code: int = 1) -> None:
     """Print one line on stderr and exit with ``code`` (1 runtime, 2 usage); a message of several
     lines is joined into one."""

@@ -23,13 +23,14 @@ from tron1cli.cli.common import (
     fail,
     finite,
     out,
+    preset_default,
     rerun_file,
     resolve_device,
     resolve_precision,
     terrain_help,
     threads_option,
 )
-from tron1cli.config.presets import PRESETS, flat, perceptive
+from tron1cli.config.presets import PRESETS
 from tron1cli.env.randomization import ALL_TERMS
 
 #: the options a preset sets; given explicitly, they override it
@@ -71,16 +72,17 @@ def train(
         "--envs",
         "-n",
         min=2,
-        help=f"Parallel environments (teacher + student) [default: {flat().num_envs} on flat ground, "
-        f"{perceptive().num_envs} elsewhere].",
+        help=f"Parallel environments (teacher + student) [default: {preset_default('num_envs')}].",
         show_default=False,
     ),
-    iterations: int = typer.Option(
+    iterations: int | None = typer.Option(
         None,
         "--iterations",
         "-i",
         min=1,
-        help="PPO iterations in total [default: 300; on --resume: the run's own].",
+        help=f"PPO iterations in total [default: {preset_default('iterations')}; on --resume: the "
+        "run's own].",
+        show_default=False,
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of every random stream."),
     ablation: str = typer.Option(
@@ -105,9 +107,15 @@ def train(
         "--gait-prior/--no-gait-prior",
         help="Gait clock + contact-schedule reward (off: the paper exactly).",
     ),
-    steps_per_env: int = typer.Option(24, "--steps-per-env", min=1, help="Rollout length per iteration."),
+    steps_per_env: int | None = typer.Option(
+        None,
+        "--steps-per-env",
+        min=1,
+        help=f"Rollout length per iteration (policy steps) [default: {preset_default('steps_per_env')}].",
+        show_default=False,
+    ),
     hidden: str = typer.Option(
-        "256,128,64", "--hidden", help="Actor and critic MLP sizes (paper: 512,256,128)."
+        "256,128,64", "--hidden", help="Actor and critic MLP sizes (the paper gives none)."
     ),
     save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
     minutes: float = typer.Option(
