@@ -29,13 +29,13 @@ class _ExpELUFunction(torch.autograd.Function):
     """ELU (alpha 1) as max(x, e - 1) with e = exp(min(x, 0)); its derivative is e itself."""
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # noqa: D102
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
         e = torch.clamp(x, max=0.0).exp_()
         ctx.save_for_backward(e)
         return torch.maximum(x, e - 1.0)
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:  # noqa: D102
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
         (e,) = ctx.saved_tensors
         return grad * e
 
