@@ -23,10 +23,10 @@ FLAT_STABLE_WEIGHT = 0.25
 success after 90 iterations from 69 % (0.5) to 95 % (README, "Learning to walk on flat")."""
 
 FLAT_NUM_ENVS = 512
-"""The flat preset's parallel envs: 512 x 24 steps an iteration instead of 1024 x 24 gives twice the
-policy updates per env step at the same cost per env step. Seeds 11-13 walked (``tron1 eval`` >= 90 %,
-<= 0.3 m/s) after 3.7 M env steps, where 1024 envs needed 7.4 M (README, "Learning to walk on
-flat")."""
+"""The flat preset's parallel envs. Measured at 24 steps an iteration (session 10): 512 envs instead
+of 1024 gave twice the policy updates per env step at the same cost per env step, and seeds 11-13
+walked (``tron1 eval`` >= 90 %, <= 0.3 m/s) after 3.7 M env steps, where 1024 envs needed 7.4 M
+(README, "Learning to walk on flat")."""
 
 FLAT_STEPS_PER_ENV = 12
 """The flat preset's rollout: 512 envs x 12 steps an iteration (600 iterations, the same 3.7 M env
