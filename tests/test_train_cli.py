@@ -341,3 +341,29 @@ def test_reward_weights_are_recorded_printed_and_kept_on_resume(tmp_path):
     r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == 2
+
+
+_BEFORE_TORCH = """
+import sys
+from typer.testing import CliRunner
+from tron1cli.cli.main import app
+for args in ({cases}):
+    r = CliRunner().invoke(app, ["train", *args])
+    print(r.exit_code, "torch" in sys.modules)
+"""
+
+
+def test_options_that_need_no_learner_are_refused_before_torch_loads():
+    """A wrong terrain, ablation, network size or reward term is one line and exit 2 without the
+    learner's imports (torch alone takes about 2 s on 2 cores)."""
+    cases = (
+        ["--terrain", "lava"],
+        ["--ablation", "nope"],
+        ["--hidden", "0"],
+        ["--reward-weights", "nope=1"],
+        ["--critic-weights", "stable=-1"],
+    )
+    code = _BEFORE_TORCH.format(cases=", ".join(repr(c) for c in cases))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split("\n")[: len(cases)] == ["2 False"] * len(cases)

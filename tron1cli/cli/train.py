@@ -189,8 +189,6 @@ def train(
     from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
     from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_weights
-    from tron1cli.learn import tune_glibc_malloc
-    from tron1cli.train.runner import Trainer, check_run_dir, run_config
 
     given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
     if resume and preset is not None:
@@ -277,9 +275,13 @@ def train(
             fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
         randomization = skipped
     device = resolve_device(device)
+    # torch (about 2 s to import on 2 cores) loads from here on, once the options above are checked
     precision = resolve_precision(precision, device)
     check_backend(backend)
     threads = threads or available_cores()
+    from tron1cli.learn import tune_glibc_malloc
+    from tron1cli.train.runner import Trainer, check_run_dir, run_config
+
     check_run_dir(run_dir, resume)
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
     tune_glibc_malloc()
@@ -336,7 +338,6 @@ def _resume(
 ) -> None:
     """``--resume``: the saved run goes on as saved; an option that would change it is refused
     (the machine's settings excepted: threads, device, precision and the physics backend)."""
-    from tron1cli.train.runner import Trainer, check_run_dir
     from tron1cli.viz.rerun_stream import parse_rerun_option
 
     try:
@@ -345,6 +346,8 @@ def _resume(
         fail(str(e), 2)
     device = resolve_device(device)
     precision = resolve_precision(precision, device) if _given(ctx, "precision") else None  # None: as saved
+    from tron1cli.train.runner import Trainer, check_run_dir
+
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
     _refuse_changed_options(ctx, run_dir)
