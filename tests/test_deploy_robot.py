@@ -157,9 +157,9 @@ def test_walks_the_flat_policy_as_deploy_sim_does(sim_robot):
     assert dep.returncode == 0, err
     rep = json.loads(out)
     assert rep["survived"] and rep["policy_steps"] == 500 and rep["safety_trip"] is None
-    # latency is reported and ordered; how it compares with the 20 ms period depends on the
-    # machine's load (three processes share 2 cores here), which is a benchmark's business
-    assert 0 < rep["latency_ms_p50"] <= rep["latency_ms_p99"] < float("inf")
+    # latency is reported, finite and ordered; how it compares with the 20 ms period depends on
+    # the machine's load (three processes share 2 cores here), which is a benchmark's business
+    assert 0 < rep["latency_ms_p50"] <= rep["latency_ms_p99"] and np.isfinite(rep["latency_ms_p99"])
     sim.send_signal(signal.SIGINT)
     sim.wait(timeout=30)
     truth = json.loads(report.read_text())
