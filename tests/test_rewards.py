@@ -157,3 +157,36 @@ def test_with_weights_replaces_only_the_named_terms():
     assert single.terms["alive"].group == "all" and single.groups == ("all",)
     with pytest.raises(ValueError, match="not a finite number"):
         with_weights(base, {"stable": float("nan")})
+
+
+def test_a_ramped_term_rises_from_zero_over_its_iterations():
+    t = TermCfg(2.0, ramp=(200, 250))
+    assert [t.scale(i) for i in (0, 199, 200, 225, 250, 10_000)] == [0.0, 0.0, 0.0, 0.5, 1.0, 1.0]
+    assert TermCfg(1.0, ramp=(5, 5)).scale(4) == 0.0 and TermCfg(1.0, ramp=(5, 5)).scale(5) == 1.0
+    assert TermCfg(1.0).scale(0) == 1.0
+    for bad in ((10, 5), (-1, 3), (1.5, 3)):
+        with pytest.raises(ValueError, match="0 <= start <= end"):
+            TermCfg(1.0, ramp=bad)
+
+
+def test_a_ramped_term_pays_nothing_before_its_start_and_its_weight_after():
+    from tron1cli.env.rewards import with_ramps, with_weights
+
+    env = fake_env()
+    base = make_reward_config(gait_prior=False)
+    cfg = with_ramps(with_weights(base, {"track_lin_l2": 1.0}), {"track_lin_l2": (10, 20)})
+    mgr, plain = RewardManager(cfg, env.n, DT), RewardManager(base, env.n, DT)
+    before = mgr.compute(env)
+    np.testing.assert_array_equal(before["loco"], plain.compute(env)["loco"])  # bit for bit
+    assert not mgr.last_terms["track_lin_l2"].any()
+    mgr.set_iteration(15)
+    l2 = TERMS["track_lin_l2"](env)
+    np.testing.assert_allclose(mgr.compute(env)["loco"] - before["loco"], 0.5 * DT * l2)
+    mgr.set_iteration(20)
+    np.testing.assert_allclose(mgr.compute(env)["loco"] - before["loco"], DT * l2)
+    # the ramp survives the run's config.json
+    assert RewardConfig.from_dict(cfg.to_dict()) == cfg
+    assert cfg.to_dict()["terms"]["track_lin_l2"]["ramp"] == [10, 20]
+    assert "ramp" not in cfg.to_dict()["terms"]["stable"]
+    with pytest.raises(ValueError, match="cannot ramp 'alive'"):
+        with_ramps(base, {"alive": (0, 10)})

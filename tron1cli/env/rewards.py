@@ -42,11 +42,30 @@ ALL = "all"
 
 @dataclass(frozen=True)
 class TermCfg:
-    """One reward entry: ``weight`` (per second), ``group`` (critic), ``gated`` by r_stable (RFM)."""
+    """One reward entry: ``weight`` (per second), ``group`` (critic), ``gated`` by r_stable (RFM).
+
+    ramp: ``(start, end)`` training iterations (completed PPO updates) over which the weight rises
+    linearly from 0 to ``weight`` (0 before ``start``, full from ``end``); None: full throughout.
+    """
 
     weight: float
     group: str = LOCO
     gated: bool = False
+    ramp: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if self.ramp is not None:
+            start, end = self.ramp
+            if int(start) != start or int(end) != end or not 0 <= start <= end:
+                raise ValueError(f"a ramp is (start, end) iterations with 0 <= start <= end, got {self.ramp}")
+            object.__setattr__(self, "ramp", (int(start), int(end)))
+
+    def scale(self, iteration: int) -> float:
+        """The share of ``weight`` in force at training iteration ``iteration`` (0 to 1)."""
+        if self.ramp is None or iteration >= self.ramp[1]:
+            return 1.0
+        start, end = self.ramp
+        return 0.0 if iteration < start else (iteration - start) / (end - start)
 
 
 def _paper_terms() -> dict[str, TermCfg]:
@@ -109,7 +128,7 @@ class RewardConfig:
 
     def to_dict(self) -> dict:
         return {
-            "terms": {k: vars(v).copy() for k, v in self.terms.items()},
+            "terms": {k: _term_dict(v) for k, v in self.terms.items()},
             "lipm_kp": self.lipm_kp,
             "z_c": self.z_c,
             "lipm_ground_window_m": self.lipm_ground_window_m,
@@ -126,6 +145,12 @@ class RewardConfig:
         terms = {k: TermCfg(**v) for k, v in d["terms"].items()}
         scalars = {k: v for k, v in d.items() if k not in ("terms", "groups")}
         return cls(terms=MappingProxyType(terms), **scalars)
+
+
+def _term_dict(t: TermCfg) -> dict:
+    """A term as JSON-ready plain values (``ramp`` only when the term has one)."""
+    d = {"weight": t.weight, "group": t.group, "gated": t.gated}
+    return d if t.ramp is None else d | {"ramp": list(t.ramp)}
 
 
 def _with(cfg: RewardConfig, terms: dict[str, TermCfg], name: str) -> RewardConfig:
@@ -169,6 +194,16 @@ GAIT_TERMS: dict[str, TermCfg] = {
     "gait_stance_speed": TermCfg(-1.0),
     "alive": TermCfg(2.0),
 }
+
+
+def with_ramps(cfg: RewardConfig, ramps: Mapping[str, tuple[int, int]]) -> RewardConfig:
+    """``cfg`` with some of its terms ramped in over training iterations (:class:`TermCfg`);
+    ValueError for a term ``cfg`` lacks or a ramp that is not ``0 <= start <= end``."""
+    missing = sorted(set(ramps) - set(cfg.terms))
+    if missing:
+        raise ValueError(f"cannot ramp '{missing[0]}': the reward has no such term (give it a weight)")
+    terms = dict(cfg.terms) | {k: replace(cfg.terms[k], ramp=tuple(r)) for k, r in ramps.items()}
+    return replace(cfg, terms=MappingProxyType(terms))
 
 
 def with_weights(cfg: RewardConfig, weights: Mapping[str, float]) -> RewardConfig:
@@ -267,12 +302,18 @@ class RewardManager:
         self.dt = dt
         self.episode_sums = {name: np.zeros(num_envs) for name in cfg.terms}
         self.last_terms: dict[str, np.ndarray] = {}
+        self.set_iteration(0)
+
+    def set_iteration(self, iteration: int) -> None:
+        """Weigh ramped terms (:class:`TermCfg`) as at training iteration ``iteration``."""
+        self.iteration = int(iteration)
+        self._weights = {k: t.weight * t.scale(self.iteration) for k, t in self.cfg.terms.items()}
 
     def compute(self, env: Tron1Env) -> dict[str, np.ndarray]:
         groups = {g: np.zeros(env.n) for g in self.cfg.groups}
         r_stable = env.lipm.r_stable
         for name, t in self.cfg.terms.items():
-            value = TERMS[name](env) * (t.weight * self.dt)
+            value = TERMS[name](env) * (self._weights[name] * self.dt)
             if t.gated:
                 value = value * r_stable
             self.last_terms[name] = value

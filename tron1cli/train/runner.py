@@ -26,7 +26,7 @@ from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.rewards import RewardConfig, make_reward_config, with_weights
+from tron1cli.env.rewards import RewardConfig, make_reward_config, with_ramps, with_weights
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
@@ -103,7 +103,7 @@ def run_config(
     top of the preset, recorded with the run.
     """
     reward = make_reward_config(preset.ablation, gait_prior=preset.gait_prior)
-    reward = with_weights(reward, preset.reward_weights)
+    reward = with_ramps(with_weights(reward, preset.reward_weights), preset.reward_ramps)
     groups = reward.groups
     env_cfg = EnvConfig(
         num_envs=preset.num_envs,
@@ -134,7 +134,7 @@ def run_config(
         save_every=save_every,
         preset=preset.name,
         preset_overrides=tuple(overrides),
-        saved_reward=reward if preset.reward_weights else None,
+        saved_reward=reward if preset.reward_weights or preset.reward_ramps else None,
     )
 
 
@@ -362,6 +362,7 @@ class Trainer:
         env, learner, n_t = self.env, self.learner, self.n_teacher
         T = self.cfg.learner.num_steps_per_env
         group_reward = {g: 0.0 for g in env.reward_cfg.groups}
+        env.rewards.set_iteration(self.iteration)
         for t in range(T):
             actions = learner.act(obs)
             if before_step is not None:
