@@ -176,11 +176,14 @@ def test_a_ramped_term_pays_nothing_before_its_start_and_its_weight_after():
     base = make_reward_config(gait_prior=False)
     cfg = with_ramps(with_weights(base, {"track_lin_l2": 1.0}), {"track_lin_l2": (10, 20)})
     mgr, plain = RewardManager(cfg, env.n, DT), RewardManager(base, env.n, DT)
+    l2 = TERMS["track_lin_l2"](env)
+    full = mgr.compute(env)["loco"]  # outside training (eval, deploy-sim): the full weight
+    mgr.set_iteration(0)
     before = mgr.compute(env)
     np.testing.assert_array_equal(before["loco"], plain.compute(env)["loco"])  # bit for bit
     assert not mgr.last_terms["track_lin_l2"].any()
+    np.testing.assert_allclose(full - before["loco"], DT * l2)
     mgr.set_iteration(15)
-    l2 = TERMS["track_lin_l2"](env)
     np.testing.assert_allclose(mgr.compute(env)["loco"] - before["loco"], 0.5 * DT * l2)
     mgr.set_iteration(20)
     np.testing.assert_allclose(mgr.compute(env)["loco"] - before["loco"], DT * l2)

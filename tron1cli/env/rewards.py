@@ -302,12 +302,12 @@ class RewardManager:
         self.dt = dt
         self.episode_sums = {name: np.zeros(num_envs) for name in cfg.terms}
         self.last_terms: dict[str, np.ndarray] = {}
-        self.set_iteration(0)
+        # full weights (the reward a policy was trained for) until the trainer sets an iteration
+        self._weights = {k: t.weight for k, t in cfg.terms.items()}
 
     def set_iteration(self, iteration: int) -> None:
         """Weigh ramped terms (:class:`TermCfg`) as at training iteration ``iteration``."""
-        self.iteration = int(iteration)
-        self._weights = {k: t.weight * t.scale(self.iteration) for k, t in self.cfg.terms.items()}
+        self._weights = {k: t.weight * t.scale(iteration) for k, t in self.cfg.terms.items()}
 
     def compute(self, env: Tron1Env) -> dict[str, np.ndarray]:
         groups = {g: np.zeros(env.n) for g in self.cfg.groups}
