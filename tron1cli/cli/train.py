@@ -618,9 +618,13 @@ def _reward_summary(c) -> str:
     from tron1cli.env.rewards import make_reward_config
 
     default = make_reward_config(c.ablation, gait_prior=c.gait_prior).terms
-    changed = {k: t for k, t in c.reward.terms.items() if k not in default or default[k] != t}
-    ramp = {k: f" (from iteration {t.ramp[0]} to {t.ramp[1]})" if t.ramp else "" for k, t in changed.items()}
-    return ", ".join(f"{k}={t.weight:g}{ramp[k]}" for k, t in changed.items()) or "default"
+    changed = [(k, t) for k, t in c.reward.terms.items() if k not in default or default[k] != t]
+    return ", ".join(f"{k}={t.weight:g}" + _ramp_text(t) for k, t in changed) or "default"
+
+
+def _ramp_text(t) -> str:
+    """' (from iteration 200 to 250)' for a ramped reward term, '' otherwise."""
+    return f" (from iteration {t.ramp[0]} to {t.ramp[1]})" if t.ramp else ""
 
 
 def _learner_summary(c) -> str:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tron1cli.config.serde import to_plain
 from tron1cli.env import gait, robot
 from tron1cli.env import reward_terms as rt
 
@@ -148,9 +149,12 @@ class RewardConfig:
 
 
 def _term_dict(t: TermCfg) -> dict:
-    """A term as JSON-ready plain values (``ramp`` only when the term has one)."""
-    d = {"weight": t.weight, "group": t.group, "gated": t.gated}
-    return d if t.ramp is None else d | {"ramp": list(t.ramp)}
+    """A term as :func:`to_plain` writes it, without ``ramp`` when it has none (the form configs
+    written before ramps have)."""
+    d = to_plain(t)
+    if d["ramp"] is None:
+        del d["ramp"]
+    return d
 
 
 def _with(cfg: RewardConfig, terms: dict[str, TermCfg], name: str) -> RewardConfig:
@@ -202,7 +206,7 @@ def with_ramps(cfg: RewardConfig, ramps: Mapping[str, tuple[int, int]]) -> Rewar
     missing = sorted(set(ramps) - set(cfg.terms))
     if missing:
         raise ValueError(f"cannot ramp '{missing[0]}': the reward has no such term (give it a weight)")
-    terms = dict(cfg.terms) | {k: replace(cfg.terms[k], ramp=tuple(r)) for k, r in ramps.items()}
+    terms = dict(cfg.terms) | {k: replace(cfg.terms[k], ramp=r) for k, r in ramps.items()}
     return replace(cfg, terms=MappingProxyType(terms))
 
 
