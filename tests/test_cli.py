@@ -39,6 +39,29 @@ def test_help_shows_the_defaults_written_in_brackets():
     assert r.returncode == 0
     assert "[default: 512 on flat ground, 1024 elsewhere]" in r.stdout
     assert "[default: the cores available]" in r.stdout
+    assert "[default: 256,128,64]" in r.stdout  # --hidden: the value every preset shares
+
+
+def test_a_missing_policy_is_refused_before_torch_is_imported(tmp_path):
+    """A mistyped path costs no start-up: each command refuses it before importing torch."""
+    code = """
+import sys
+from typer.testing import CliRunner
+from tron1cli.cli.main import app
+missing = sys.argv[1]
+for args in (["eval", missing], ["push-test", missing], ["deploy-sim", missing],
+             ["deploy-robot", missing], ["export-onnx", missing]):
+    r = CliRunner().invoke(app, args)
+    print(r.exit_code, "torch" in sys.modules, " ".join(r.output.split()))
+"""
+    r = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "nope.onnx")], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 5
+    for line in lines:
+        assert line.startswith("1 False") and "not found" in line and "nope.onnx" in line, line
 
 
 @pytest.mark.parametrize(
@@ -80,6 +103,7 @@ def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
     res = json.loads(r.stdout)
     assert res["num_envs"] == 16 and res["rounds"] == 2 and res["nthread"] == 1
     assert res["terrain"] == "flat" and res["perception"] is False and res["precision"] == "fp32"
+    assert res["epochs"] == 3  # the flat preset's PPO epochs, as train would use
     steps, raw = 16 * res["steps_per_env"], res["raw_steps_per_s"]
     assert res["collect_steps_per_s"] == pytest.approx(steps / res["collect_s"])
     assert res["learn_over_collect"] == pytest.approx(res["learn_s"] / res["collect_s"])

@@ -29,6 +29,16 @@ def test_flat_preset_is_the_quick_start():
     assert dict(p.reward_ramps) == {"track_lin_l2": (200, 250)} and not make_preset("perceptive").reward_ramps
     assert dict(make_preset("perceptive").critic_weights) == {"stable": 0.5}
     assert not p.perception and not p.randomization.terms and not p.pushes.enabled
-    assert (p.num_envs, p.steps_per_env, p.iterations) == (512, 12, 600)
+    assert (p.num_envs, p.steps_per_env, p.iterations, p.epochs) == (512, 12, 600, 3)
     q = make_preset("perceptive")
-    assert (q.num_envs, q.steps_per_env, q.iterations) == (1024, 24, 300)
+    assert (q.num_envs, q.steps_per_env, q.iterations, q.epochs) == (1024, 24, 300, 5)
+
+
+@pytest.mark.parametrize(
+    "field, value", [("num_envs", 1), ("iterations", 0), ("steps_per_env", 0), ("epochs", 0)]
+)
+def test_a_preset_refuses_sizes_that_train_nothing(field, value):
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match="a preset needs"):
+        replace(make_preset("flat"), **{field: value})

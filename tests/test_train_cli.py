@@ -194,6 +194,7 @@ def test_default_critic_weights_follow_the_groups(tmp_path):
     assert r.returncode == 0, r.stderr
     c = json.loads((tmp_path / "a" / "config.json").read_text())
     assert c["learner"]["critic_weights"] == {"stable": 0.25}  # the flat preset's
+    assert c["learner"]["num_epochs"] == 3 and "num_epochs=3" in " ".join(r.stderr.split())
     assert c["reward"]["terms"]["flat_orientation"] == {"weight": -5.0, "group": "loco", "gated": False}
     l2 = {"weight": 1.0, "group": "loco", "gated": False, "ramp": [200, 250]}  # ramped in
     assert c["reward"]["terms"]["track_lin_l2"] == l2
@@ -214,6 +215,7 @@ def test_paper_preset_with_overrides_is_recorded_and_printed(tmp_path):
     assert (c["preset"], c["gait_prior"], c["learner"]["critic_weights"]) == ("paper", False, {})
     assert c["env"]["perception"] and c["env"]["pushes"]["enabled"] and c["env"]["terrain"] == "mixed"
     assert "camera_fov" in c["env"]["randomization"]["terms"] and c["env"]["num_envs"] == 16
+    assert c["learner"]["num_epochs"] == 5 and "learner default" in header
 
 
 def test_resumed_run_keeps_its_terrain_levels(tmp_path):
@@ -248,7 +250,9 @@ def test_learner_settings_are_parsed_recorded_printed_and_kept_on_resume(tmp_pat
     settings = "rec_batch_envs=4,entropy_coef=0.002,desired_kl=none,clip_value_loss=off"
     r = tron1("train", *SMALL, "--iterations", "1", "--learner", settings, "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
-    shown = "learner desired_kl=None, entropy_coef=0.002, clip_value_loss=False, rec_batch_envs=4,"
+    shown = (  # the flat preset's 3 epochs, then the settings given
+        "learner num_epochs=3, desired_kl=None, entropy_coef=0.002, clip_value_loss=False, rec_batch_envs=4,"
+    )
     assert shown in " ".join(r.stderr.split())
     c = json.loads((run / "config.json").read_text())
     lr = c["learner"]

@@ -217,6 +217,7 @@ def run_train_bench(
     res = {
         "num_envs": n,
         "steps_per_env": T,
+        "epochs": cfg.learner.num_epochs,
         "rounds": rounds,
         "terrain": cfg.env.terrain,
         "perception": cfg.env.perception,

@@ -161,6 +161,7 @@ def print_train_table(res: dict) -> None:
     """The table of a :func:`tron1cli.benchmark.run_train_bench` result."""
     t = Table(
         title=f"tron1 bench --train: {res['num_envs']} envs x {res['steps_per_env']} steps, "
+        f"{res['epochs']} epochs, "
         f"{res['terrain']}{' (perception)' if res['perception'] else ''}, {res['nthread']} threads, "
         f"{res['backend']} physics, "
         f"learner on {res['device']} in {res['precision']}, median of {res['rounds']} rounds"

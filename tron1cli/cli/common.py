@@ -26,10 +26,15 @@ def terrain_help(extra: tuple[str, ...] = ()) -> str:
 
 def preset_default(field: str) -> str:
     """A preset setting as help texts show its default: the flat preset's value and the perceptive
-    one's (``"512 on flat ground, 1024 elsewhere"``)."""
+    one's (``"512 on flat ground, 1024 elsewhere"``), or the one value both share (a tuple as
+    ``"256,128,64"``)."""
     from tron1cli.config.presets import flat, perceptive
 
-    return f"{getattr(flat(), field)} on flat ground, {getattr(perceptive(), field)} elsewhere"
+    def text(v: object) -> str:
+        return ",".join(map(str, v)) if isinstance(v, tuple) else str(v)
+
+    on_flat, elsewhere = text(getattr(flat(), field)), text(getattr(perceptive(), field))
+    return on_flat if on_flat == elsewhere else f"{on_flat} on flat ground, {elsewhere} elsewhere"
 
 
 def fail(message: str, code: int = 1) -> None:
@@ -47,6 +52,14 @@ def warn(message: str) -> None:
 def note(message: str) -> None:
     """One informational line on stderr (e.g. that an existing output file is replaced)."""
     err.print(f"note: {escape(one_line(message))}", highlight=False, soft_wrap=True)
+
+
+def check_inputs(paths, what: str = "policy") -> None:
+    """Exit 1 with ``<what> not found: PATH`` for the first of ``paths`` that is not a file: called
+    before a command imports torch and the env, so a mistyped path costs no start-up."""
+    for path in paths:
+        if path is not None and not Path(path).is_file():
+            fail(f"{what} not found: {path}", 1)
 
 
 def check_outputs(files=(), dirs=(), inputs=()) -> list[Path]:

@@ -8,7 +8,17 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import GAIT_FREQ_HELP, err, fail, finite, note, out, print_json, terrain_help
+from tron1cli.cli.common import (
+    GAIT_FREQ_HELP,
+    check_inputs,
+    err,
+    fail,
+    finite,
+    note,
+    out,
+    print_json,
+    terrain_help,
+)
 from tron1cli.errors import UsageError
 
 EXIT = {"duration": 0, "interrupted": 130}  # every other end (a safety trip) exits 1
@@ -48,6 +58,7 @@ def deploy_robot(
 
     Reports survival, loop latency (state message to published command) and policy time.
     """
+    check_inputs([policy])
     from tron1cli.deploy.depth_link import DEFAULT_PORT, parse_address
     from tron1cli.deploy.robot import RobotConfig, RobotController
     from tron1cli.deploy.schedule import CommandSchedule, parse_cmd

@@ -13,6 +13,7 @@ from tron1cli.cli.common import (
     SEED_MAX,
     VIDEO_HELP,
     VIDEO_SIZE_HELP,
+    check_inputs,
     check_outputs,
     err,
     fail,
@@ -90,6 +91,7 @@ def deploy_sim(
     Reports survival, velocity tracking, LIPM CoM/ZMP figures, policy inference time, depth frame
     age and render time, and the real-time factor (simulated seconds per wall second).
     """
+    check_inputs([policy])
     from tron1cli.deploy.pipeline import PUSHES, DeployConfig, DeploySim, check_display
     from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
     from tron1cli.env.terrain import resolve_terrain

@@ -19,6 +19,7 @@ from tron1cli.cli.common import (
     VIDEO_SIZE_HELP,
     backend_option,
     check_backend,
+    check_inputs,
     check_outputs,
     err,
     fail,
@@ -51,6 +52,16 @@ def parse_groups(tokens: list[str]) -> dict[str, list[Path]]:
         if label in groups:
             raise ValueError(f"label '{label}' given twice; name groups as LABEL=PATH")
         groups[label] = paths
+    return groups
+
+
+def _policy_groups(tokens: list[str]) -> dict[str, list[Path]]:
+    """:func:`parse_groups` with every path checked to be a file, before the heavy imports."""
+    try:
+        groups = parse_groups(tokens)
+    except ValueError as e:
+        fail(str(e), 2)
+    check_inputs(p for paths in groups.values() for p in paths)
     return groups
 
 
@@ -209,6 +220,7 @@ def eval_cmd(
     pitch_deg: mean signed base pitch (degrees, + nose down); traverse_rate: share of envs that
     succeeded and walked at least half their commanded distance.
     """
+    groups = _policy_groups(policies)
     from tron1cli.evaluation.protocol import (
         SPEED_DIMS,
         EvalSpec,
@@ -222,7 +234,6 @@ def eval_cmd(
     try:
         if actor not in ACTORS:
             raise ValueError(f"unknown --actor '{actor}'; choose from {', '.join(ACTORS)}")
-        groups = parse_groups(policies)
         terrains = resolve_eval_terrains(terrain)
         plan = parse_speeds(speeds or [])
         shown = [m.strip() for m in metrics.split(",") if m.strip()] or list(METRICS)
@@ -472,6 +483,7 @@ def push_test(
     Full window, as in eval: only a fall ends an env's window.
     """
 
+    groups = _policy_groups(policies)
     from tron1cli.evaluation.protocol import aggregate, resolve_eval_terrains
     from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, run_push_test
     from tron1cli.policy.runtime import load_policy
@@ -480,7 +492,6 @@ def push_test(
 
     proto = PushProtocol.extreme() if extreme else PushProtocol.moderate()
     try:
-        groups = parse_groups(policies)
         if terrain is not None:
             (t,) = resolve_eval_terrains(terrain) if terrain != "all" else ("mixed",)
             proto = replace(proto, terrain=t)

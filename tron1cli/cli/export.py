@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import check_outputs, err, fail, finite, note, out, print_json
+from tron1cli.cli.common import check_inputs, check_outputs, err, finite, note, out, print_json
 
 
 def export_onnx(
@@ -27,11 +27,10 @@ def export_onnx(
     the whole deployment contract. Fails (exit 1) if onnxruntime and torch differ by more than --tol
     over a recurrent rollout in the policy's own env.
     """
+    check_inputs([checkpoint], "checkpoint")
     from tron1cli.policy.export import default_output
     from tron1cli.policy.export import export_onnx as run_export
 
-    if not checkpoint.is_file():
-        fail(f"checkpoint not found: {checkpoint}", 1)
     target = output if output is not None else default_output(checkpoint)
     replaced = check_outputs(files=[("-o", target)], inputs=[checkpoint])
     what = f"exporting {checkpoint} and comparing onnxruntime with torch over {parity_steps} steps ..."

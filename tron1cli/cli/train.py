@@ -114,8 +114,11 @@ def train(
         help=f"Rollout length per iteration (policy steps) [default: {preset_default('steps_per_env')}].",
         show_default=False,
     ),
-    hidden: str = typer.Option(
-        "256,128,64", "--hidden", help="Actor and critic MLP sizes (the paper gives none)."
+    hidden: str | None = typer.Option(
+        None,
+        "--hidden",
+        help=f"Actor and critic MLP sizes (the paper gives none) [default: {preset_default('hidden')}].",
+        show_default=False,
     ),
     save_every: int = typer.Option(50, "--save-every", min=1, help="Checkpoint period (iterations)."),
     minutes: float = typer.Option(

@@ -34,6 +34,13 @@ steps as 300 of 24). Twice the policy updates per env step again, at the same co
 seed 11's ``tron1 eval`` after 2.2 M env steps tracked 0.311 m/s instead of 0.385 (README,
 "Learning to walk on flat")."""
 
+FLAT_EPOCHS = 3
+"""The flat preset's PPO epochs over each rollout (the learner's default, 5, elsewhere). An iteration
+costs about 0.74 of a 5-epoch one; seeds 11-13 (session 14) kept 98-100 % of the robots up after
+200 iterations (the cost of 150 with 5 epochs, after which 80-93 % stood) and tracked 0.26-0.30
+m/s after 450 (the cost of 333; 5 epochs after 350: 0.26-0.32) (README, "Learning to walk on
+flat")."""
+
 FLAT_REWARD_WEIGHTS = {"flat_orientation": -5.0, "track_lin_l2": 1.0}
 """The flat preset's extra reward terms (README, "Learning to walk on flat"):
 
@@ -56,7 +63,8 @@ class TrainPreset:
     """What a training run starts from.
 
     terrain: CLI terrain name; num_envs: parallel envs; iterations: PPO iterations;
-    steps_per_env: rollout length per iteration (policy steps); hidden: actor and critic MLP sizes;
+    steps_per_env: rollout length per iteration (policy steps); epochs: PPO epochs over each rollout;
+    hidden: actor and critic MLP sizes;
     teacher_ratio: teacher share of the envs; gait_prior: clock + contact schedule (ours);
     critic_weights: reward group -> weight of its normalised advantage (missing: 1);
     reward_weights: reward term -> per-second weight replacing the default one (missing: default);
@@ -69,6 +77,7 @@ class TrainPreset:
     num_envs: int = 1024
     iterations: int = 300
     steps_per_env: int = 24
+    epochs: int = 5
     hidden: tuple[int, ...] = (256, 128, 64)
     teacher_ratio: float = 0.5
     gait_prior: bool = True
@@ -83,20 +92,21 @@ class TrainPreset:
     ablation: str = "none"
 
     def __post_init__(self) -> None:
-        if self.num_envs < 2 or self.iterations < 1 or self.steps_per_env < 1:
-            raise ValueError("a preset needs >= 2 envs, >= 1 iteration and >= 1 step per env")
+        if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:
+            raise ValueError("a preset needs >= 2 envs and >= 1 iteration, step per env and epoch")
         if not 0.0 <= self.teacher_ratio <= 1.0:
             raise ValueError("teacher_ratio must lie in [0, 1]")
 
 
 def flat() -> TrainPreset:
-    """The quick start: blind, on flat ground, nominal robot, 512 envs x 12 steps, gait prior on,
+    """The quick start: blind, on flat ground, nominal robot, 512 envs x 12 steps, 3 epochs, gait prior on,
     the tilt penalty, the l2 tracking term from iteration 200 and the stability critic at 0.25;
     600 iterations (3.7 M env steps)."""
     return TrainPreset(
         name="flat",
         num_envs=FLAT_NUM_ENVS,
         steps_per_env=FLAT_STEPS_PER_ENV,
+        epochs=FLAT_EPOCHS,
         iterations=600,
         critic_weights=MappingProxyType({"stable": FLAT_STABLE_WEIGHT}),
         reward_weights=MappingProxyType(FLAT_REWARD_WEIGHTS),

@@ -120,6 +120,7 @@ def run_config(
         LearnerConfig(),
         teacher_ratio=preset.teacher_ratio,
         num_steps_per_env=preset.steps_per_env,
+        num_epochs=preset.epochs,
         actor_hidden=preset.hidden,
         critic_hidden=preset.hidden,
         critic_weights={g: w for g, w in preset.critic_weights.items() if g in groups},
