@@ -42,26 +42,46 @@ def test_help_shows_the_defaults_written_in_brackets():
     assert "[default: 256,128,64]" in r.stdout  # --hidden: the value every preset shares
 
 
-def test_a_missing_policy_is_refused_before_torch_is_imported(tmp_path):
-    """A mistyped path costs no start-up: each command refuses it before importing torch."""
-    code = """
+_BEFORE_TORCH = """
 import sys
 from typer.testing import CliRunner
 from tron1cli.cli.main import app
-missing = sys.argv[1]
-for args in (["eval", missing], ["push-test", missing], ["deploy-sim", missing],
-             ["deploy-robot", missing], ["export-onnx", missing]):
+for args in {cases}:
     r = CliRunner().invoke(app, args)
     print(r.exit_code, "torch" in sys.modules, " ".join(r.output.split()))
 """
-    r = subprocess.run(
-        [sys.executable, "-c", code, str(tmp_path / "nope.onnx")], capture_output=True, text=True, timeout=300
-    )
+
+
+def _refusals_before_torch(cases: list[list[str]]) -> list[str]:
+    """'<exit code> <torch imported> <output>' of each case, run in one fresh interpreter."""
+    code = _BEFORE_TORCH.format(cases=repr(cases))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    lines = r.stdout.splitlines()
-    assert len(lines) == 5
+    return r.stdout.splitlines()
+
+
+def test_a_missing_policy_is_refused_before_torch_is_imported(tmp_path):
+    """A mistyped path costs no start-up: each command refuses it before importing torch."""
+    missing = str(tmp_path / "nope.onnx")
+    commands = ("eval", "push-test", "deploy-sim", "deploy-robot", "export-onnx")
+    lines = _refusals_before_torch([[c, missing] for c in commands])
+    assert len(lines) == len(commands)
     for line in lines:
         assert line.startswith("1 False") and "not found" in line and "nope.onnx" in line, line
+
+
+def test_eval_options_are_refused_before_torch_is_imported(tmp_path):
+    policy = tmp_path / "p.onnx"
+    policy.write_bytes(b"not read before the options are checked")
+    cases = [
+        ["eval", str(policy), "--terrain", "lava"],
+        ["eval", str(policy), "--actor", "ghost"],
+        ["push-test", str(policy), "--terrain", "lava"],
+        ["push-test", str(policy), "--watch", "shove"],
+    ]
+    lines = _refusals_before_torch(cases)
+    assert [x[:7] for x in lines] == ["2 False"] * len(cases), lines
+    assert "unknown terrain 'lava'" in lines[0] and "unknown --actor 'ghost'" in lines[1]
 
 
 @pytest.mark.parametrize(

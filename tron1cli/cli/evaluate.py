@@ -229,7 +229,7 @@ def eval_cmd(
         resolve_eval_terrains,
         run_batch,
     )
-    from tron1cli.policy.runtime import ACTORS, load_policy
+    from tron1cli.policy.contract import ACTORS
 
     try:
         if actor not in ACTORS:
@@ -247,6 +247,7 @@ def eval_cmd(
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
 
+    from tron1cli.policy.runtime import load_policy
     from tron1cli.viz.video import DEFAULT_SIZE
 
     recorder = open_video(video, video_size, DEFAULT_SIZE)
@@ -486,9 +487,6 @@ def push_test(
     groups = _policy_groups(policies)
     from tron1cli.evaluation.protocol import aggregate, resolve_eval_terrains
     from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, run_push_test
-    from tron1cli.policy.runtime import load_policy
-    from tron1cli.viz.plots import push_survival
-    from tron1cli.viz.video import GRID_SIZE
 
     proto = PushProtocol.extreme() if extreme else PushProtocol.moderate()
     try:
@@ -503,6 +501,10 @@ def push_test(
     check_backend(backend)
     inputs = [p for paths in groups.values() for p in paths]
     check_outputs(files=[rerun_file(target)], dirs=[("--out", out_dir)], inputs=inputs)
+    from tron1cli.policy.runtime import load_policy
+    from tron1cli.viz.plots import push_survival
+    from tron1cli.viz.video import GRID_SIZE
+
     recorder = open_video(video, video_size, GRID_SIZE)
     loaded = {label: [load_policy(p) for p in paths] for label, paths in groups.items()}
     check_levels(loaded, level)

@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -50,7 +50,9 @@ from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
 from tron1cli.evaluation.metric_names import METRICS
 from tron1cli.policy.contract import check_matches_env
-from tron1cli.policy.runtime import Policy
+
+if TYPE_CHECKING:  # torch stays out of the CLI's option checks
+    from tron1cli.policy.runtime import Policy
 
 #: a traverse: a success that walked at least this share of its commanded distance
 TRAVERSE_SHARE = 0.5

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.math3d import rotate_z, yaw_of
 from tron1cli.evaluation.protocol import EvalResult, EvalSpec, run_batch
-from tron1cli.policy.runtime import Policy
+
+if TYPE_CHECKING:
+    from tron1cli.policy.runtime import Policy
 
 _AXES = ("x", "y", "z")
 #: push type -> index of the wrench entry it drives (0-2 force, 3-5 torque) and its sign

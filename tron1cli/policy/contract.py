@@ -23,6 +23,10 @@ VERSION = 1
 INPUTS = ("history", "depth", "hidden")
 OUTPUTS = ("action", "hidden_next", "h_hat", "e_hat")
 
+#: who acts when a policy runs: the student (depth and history; the one an ONNX export holds) or,
+#: from a training checkpoint only, the teacher (privileged state and the heightmap)
+ACTORS = ("student", "teacher")
+
 
 def layout_of(run_cfg) -> ObsLayout:
     """The observation layout a run's env has (same rule as Tron1Env)."""

@@ -24,9 +24,6 @@ from tron1cli.policy import contract as pc
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-ACTORS = ("student", "teacher")
-
-
 def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     """(VisionCTS in eval mode, no gradients, RunConfig, the raw checkpoint) of a training checkpoint."""
     from tron1cli.learn import LearnerConfig, ObsDims, VisionCTS
@@ -214,8 +211,8 @@ def load_policy(path: Path | str, actor: str = "student") -> Policy:
     """Load ``path`` (a ``.pt`` checkpoint or an ``.onnx`` export) as its student, or a checkpoint as
     its teacher (``actor="teacher"``); bad files raise Tron1Error."""
     path = Path(path)
-    if actor not in ACTORS:
-        raise ValueError(f"unknown actor '{actor}'; choose from {', '.join(ACTORS)}")
+    if actor not in pc.ACTORS:
+        raise ValueError(f"unknown actor '{actor}'; choose from {', '.join(pc.ACTORS)}")
     if not path.is_file():
         raise Tron1Error(f"policy not found: {path}")
     if path.suffix == ".onnx":
