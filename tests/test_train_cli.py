@@ -251,7 +251,7 @@ def test_learner_settings_are_parsed_recorded_printed_and_kept_on_resume(tmp_pat
     r = tron1("train", *SMALL, "--iterations", "1", "--learner", settings, "--run-dir", str(run))
     assert r.returncode == 0, r.stderr
     shown = (  # the flat preset's 3 epochs, then the settings given
-        "learner num_epochs=3, desired_kl=None, entropy_coef=0.002, clip_value_loss=False, rec_batch_envs=4,"
+        "learner num_epochs=3, desired_kl=none, entropy_coef=0.002, clip_value_loss=False, rec_batch_envs=4,"
     )
     assert shown in " ".join(r.stderr.split())
     c = json.loads((run / "config.json").read_text())
@@ -349,6 +349,57 @@ def test_reward_weights_are_recorded_printed_and_kept_on_resume(tmp_path):
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["iteration"] == 2
 
 
+def test_reward_ramps_are_recorded_printed_and_kept_on_resume(tmp_path):
+    run = tmp_path / "r"
+    ramps = "track_lin_l2=10:20,alive=0:5"
+    r = tron1("train", *SMALL, "--iterations", "1", "--reward-ramps", ramps, "--run-dir", str(run))
+    assert r.returncode == 0, r.stderr
+    header = " ".join(r.stderr.split())
+    assert (
+        "track_lin_l2=1 (from iteration 10 to 20)" in header and "alive=2 (from iteration 0 to 5)" in header
+    )
+    terms = json.loads((run / "config.json").read_text())["reward"]["terms"]
+    assert terms["track_lin_l2"]["ramp"] == [10, 20] and terms["alive"]["ramp"] == [0, 5]
+    resume = ("train", "--resume", "--iterations", "2", "--run-dir", str(run))
+    r = tron1(*resume, "--reward-ramps", "track_lin_l2=none")
+    assert r.returncode == 2 and "started with --reward-ramps track_lin_l2=10:20" in " ".join(
+        r.stderr.split()
+    )
+    r = tron1(*resume, "--reward-ramps", "alive=0:5")  # the value it was started with
+    assert r.returncode == 0, r.stderr
+    r = tron1(
+        "train",
+        *SMALL,
+        "--iterations",
+        "1",
+        "--reward-ramps",
+        "track_lin_l2=none",
+        "--run-dir",
+        str(tmp_path / "n"),
+    )
+    assert r.returncode == 0, r.stderr
+    terms = json.loads((tmp_path / "n" / "config.json").read_text())["reward"]["terms"]
+    assert (
+        "ramp" not in terms["track_lin_l2"] and terms["track_lin_l2"]["weight"] == 1.0
+    )  # full from the start
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("track_lin_l2=20:10", "START <= END"),
+        ("track_lin_l2=5", "a ramp is START:END"),
+        ("track_lin_l2=-1:4", "a ramp is START:END"),
+        ("lava=1:2", "cannot ramp 'lava'"),
+        ("track_lin_l2", "KEY=VALUE pairs"),
+    ],
+)
+def test_bad_reward_ramps_are_one_line_exit_2(tmp_path, value, message):
+    r = tron1("train", *SMALL, "--reward-ramps", value, "--run-dir", str(tmp_path / "x"))
+    assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr
+    assert len([x for x in r.stderr.splitlines() if x.strip()]) == 1
+
+
 _BEFORE_TORCH = """
 import sys
 from typer.testing import CliRunner
@@ -368,6 +419,7 @@ def test_options_that_need_no_learner_are_refused_before_torch_loads():
         ["--hidden", "0"],
         ["--reward-weights", "nope=1"],
         ["--critic-weights", "stable=-1"],
+        ["--reward-ramps", "nope=1:2"],
     )
     code = _BEFORE_TORCH.format(cases=", ".join(repr(c) for c in cases))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

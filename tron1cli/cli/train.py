@@ -30,8 +30,14 @@ from tron1cli.cli.common import (
     terrain_help,
     threads_option,
 )
-from tron1cli.config.presets import PRESETS
+from tron1cli.config.presets import FLAT_REWARD_RAMPS, PRESETS
 from tron1cli.env.randomization import ALL_TERMS
+
+
+def _ramps_text(ramps) -> str:
+    """{"a": (200, 250)} -> 'a=200:250' (the form ``--reward-ramps`` takes)."""
+    return ",".join(f"{k}={a}:{b}" for k, (a, b) in ramps.items())
+
 
 #: the options a preset sets; given explicitly, they override it
 PRESET_OPTIONS = (
@@ -44,6 +50,7 @@ PRESET_OPTIONS = (
     "hidden",
     "critic_weights",
     "reward_weights",
+    "reward_ramps",
     "learner",
     "perception",
     "randomize",
@@ -166,6 +173,13 @@ def train(
         help="Per-second weights of reward terms replacing the defaults, e.g. alive=0.5 "
         "(terms: README, Reward; a run's own in its config.json).",
     ),
+    reward_ramps: str = typer.Option(
+        "",
+        "--reward-ramps",
+        help="Reward terms whose weight rises from 0 over training iterations, TERM=START:END, or "
+        f"TERM=none for the full weight from the start [default: {_ramps_text(FLAT_REWARD_RAMPS)} "
+        "on flat ground, none elsewhere].",
+    ),
     learner: str = typer.Option(
         "",
         "--learner",
@@ -191,7 +205,7 @@ def train(
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_weights
+    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_ramps, with_weights
 
     given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
     if resume and preset is not None:
@@ -266,6 +280,17 @@ def train(
             with_weights(make_reward_config(ablation, gait_prior=gait_prior), term_weights)
         except ValueError as e:
             fail(f"--reward-weights: {e}", 2)
+    ramps = dict(base.reward_ramps)
+    if "reward_ramps" in given:
+        try:
+            for term, ramp in _ramps(reward_ramps).items():
+                if ramp is None:
+                    ramps.pop(term, None)
+                else:
+                    ramps[term] = ramp
+            with_ramps(with_weights(make_reward_config(ablation, gait_prior=gait_prior), term_weights), ramps)
+        except ValueError as e:
+            fail(f"--reward-ramps: {e}", 2)
     randomization = base.randomization
     if "randomize" in given:
         randomization = RandomizationConfig.table_iii() if randomize else RandomizationConfig()
@@ -303,6 +328,7 @@ def train(
             gait_prior=gait_prior,
             critic_weights=MappingProxyType(weights),
             reward_weights=MappingProxyType(term_weights),
+            reward_ramps=MappingProxyType(ramps),
             perception=perception if "perception" in given else base.perception,
             randomization=randomization,
             pushes=push_cfg,
@@ -386,6 +412,7 @@ def _saved_values(cfg) -> dict:
         "hidden": tuple(lr.actor_hidden),
         "critic_weights": {k: float(v) for k, v in lr.critic_weights.items() if float(v) != 1.0},
         "reward_weights": {k: t.weight for k, t in cfg.reward.terms.items()},
+        "reward_ramps": {k: t.ramp for k, t in cfg.reward.terms.items() if t.ramp},
         "learner": {k: getattr(lr, k) for k in tunable_fields()},
         "perception": e.perception,
         "randomize": bool(terms),
@@ -405,6 +432,8 @@ def _as_saved(name: str, value):
             return {k: v for k, v in _pairs(value).items() if v != 1.0}
         if name == "reward_weights":
             return _pairs(value)
+        if name == "reward_ramps":
+            return _ramps(value)
         if name == "randomize_skip":
             return frozenset(_csv(value))
     except ValueError:
@@ -413,13 +442,13 @@ def _as_saved(name: str, value):
 
 
 def _shown(name: str, value) -> str:
-    flag = "--" + name.replace("_", "-")
+    flag, ramps = "--" + name.replace("_", "-"), name == "reward_ramps"
     if isinstance(value, bool):
         return flag if value else "--no-" + name.replace("_", "-")
     if isinstance(value, tuple):
         value = ",".join(str(x) for x in value)
     elif isinstance(value, dict):
-        value = ",".join(f"{k}={_value(v)}" for k, v in value.items()) or "(all 1)"
+        value = ",".join(f"{k}={_value(v)}" for k, v in value.items()) or ("(none)" if ramps else "(all 1)")
     elif isinstance(value, frozenset):
         value = ",".join(t for t in ALL_TERMS if t in value) or "(none)"
     return f"{flag} {value}"
@@ -450,9 +479,9 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
             now = _as_saved(name, ctx.params[name])
         if name == "teacher_ratio" and not isinstance(now, str):
             same = abs(float(now) - float(was)) < 1e-12
-        elif name in ("reward_weights", "learner") and isinstance(now, dict):  # only the keys given
-            same = all(was.get(k) == v for k, v in now.items())
-            was = {k: was.get(k, float("nan")) for k in now}
+        elif name in ("reward_weights", "reward_ramps", "learner") and isinstance(now, dict):
+            same = all(was.get(k) == v for k, v in now.items())  # only the keys given
+            was = {k: was.get(k, None if name == "reward_ramps" else float("nan")) for k in now}
         else:
             same = now == was
         if not same:
@@ -465,7 +494,9 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
 
 
 def _value(v) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
+    if isinstance(v, tuple):  # a reward ramp
+        return f"{v[0]}:{v[1]}"
+    return f"{v:g}" if isinstance(v, float) else "none" if v is None else str(v)
 
 
 def _settings(text: str) -> dict[str, str]:
@@ -474,6 +505,22 @@ def _settings(text: str) -> dict[str, str]:
     if any(len(kv) != 2 for kv in pairs):
         raise ValueError(f"wants KEY=VALUE pairs separated by commas, got '{text}'")
     return {k.strip(): v.strip() for k, v in pairs}
+
+
+def _ramps(text: str) -> dict[str, tuple[int, int] | None]:
+    """``A=200:250,B=none`` -> {A: (200, 250), B: None}; ValueError, one line, on anything else."""
+    out: dict[str, tuple[int, int] | None] = {}
+    for term, value in _settings(text).items():
+        if value.lower() == "none":
+            out[term] = None
+            continue
+        start, sep, end = value.partition(":")
+        if not (sep and start.isdigit() and end.isdigit()) or int(start) > int(end):
+            raise ValueError(f"{term}={value}: a ramp is START:END iterations with START <= END, or none")
+        out[term] = (int(start), int(end))
+    if not out:
+        raise ValueError(f"wants TERM=START:END pairs separated by commas, got '{text}'")
+    return out
 
 
 def _pairs(text: str) -> dict[str, float]:
