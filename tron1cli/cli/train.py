@@ -261,7 +261,8 @@ def train(
     except ValueError as e:
         fail(str(e), 2)
     gait_prior = gait_prior if "gait_prior" in given else base.gait_prior
-    groups = make_reward_config(ablation, gait_prior=gait_prior).groups
+    reward = make_reward_config(ablation, gait_prior=gait_prior)  # checked as the options below change it
+    groups = reward.groups
     if "critic_weights" in given:
         weights = _parse_weights(critic_weights, "--critic-weights", "GROUP")
         bad = [k for k, w in weights.items() if w < 0]
@@ -276,10 +277,10 @@ def train(
     term_weights = dict(base.reward_weights)
     if "reward_weights" in given:
         term_weights |= _parse_weights(reward_weights, "--reward-weights", "TERM")
-        try:
-            with_weights(make_reward_config(ablation, gait_prior=gait_prior), term_weights)
-        except ValueError as e:
-            fail(f"--reward-weights: {e}", 2)
+    try:
+        reward = with_weights(reward, term_weights)
+    except ValueError as e:
+        fail(f"--reward-weights: {e}", 2)
     ramps = dict(base.reward_ramps)
     if "reward_ramps" in given:
         try:
@@ -288,7 +289,7 @@ def train(
                     ramps.pop(term, None)
                 else:
                     ramps[term] = ramp
-            with_ramps(with_weights(make_reward_config(ablation, gait_prior=gait_prior), term_weights), ramps)
+            with_ramps(reward, ramps)
         except ValueError as e:
             fail(f"--reward-ramps: {e}", 2)
     randomization = base.randomization
@@ -442,13 +443,14 @@ def _as_saved(name: str, value):
 
 
 def _shown(name: str, value) -> str:
-    flag, ramps = "--" + name.replace("_", "-"), name == "reward_ramps"
+    flag = "--" + name.replace("_", "-")
     if isinstance(value, bool):
         return flag if value else "--no-" + name.replace("_", "-")
     if isinstance(value, tuple):
         value = ",".join(str(x) for x in value)
     elif isinstance(value, dict):
-        value = ",".join(f"{k}={_value(v)}" for k, v in value.items()) or ("(none)" if ramps else "(all 1)")
+        empty = "(none)" if name == "reward_ramps" else "(all 1)"
+        value = ",".join(f"{k}={_value(v)}" for k, v in value.items()) or empty
     elif isinstance(value, frozenset):
         value = ",".join(t for t in ALL_TERMS if t in value) or "(none)"
     return f"{flag} {value}"
