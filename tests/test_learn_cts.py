@@ -95,9 +95,13 @@ def test_gradient_routes(vision):
     assert all(all(grads(h)) for h in heads) and m.log_std.grad is not None
 
     m.zero_grad(set_to_none=True)
+    calls = []
+    hook = m.teacher_h.register_forward_hook(lambda *_: calls.append(1))
     rec, parts = learner.reconstruction_loss(torch.arange(T * N))
+    hook.remove()
     rec.backward()
     assert set(parts) == {"latent_e", "privileged"}  # the image path owns latent_h / heightmap
+    assert not calls  # so no heightmap-encoder pass for targets nothing uses
     assert all(grads(m.est_e)) and all(grads(m.dec_e))
     assert not any(any(grads(x)) for x in teacher + heads + [m.est_h, m.dec_h])
     assert m.log_std.grad is None

@@ -398,12 +398,14 @@ class VisionCTSLearner:
                 return torch.zeros((), device=self.device), {}
         hist = st.flat("history")[idx]
         e = st.flat("privileged")[idx]
-        h = st.flat("heightmap")[idx] if self.dims.has_heightmap else None
+        # the history-only heightmap estimator learns here; the image path's targets come later
+        mlp_h = m.est_h is not None and not m.depth_path
+        h = st.flat("heightmap")[idx] if mlp_h else None
         with torch.no_grad():
             le_t, lh_t = m.teacher_latents(e, h)
         le_s = m.student_latent_e(hist)
         parts = {"latent_e": F.mse_loss(le_s, le_t), "privileged": F.mse_loss(m.dec_e(le_s), e)}
-        if m.est_h is not None and not m.depth_path:
+        if mlp_h:
             lh_s = l2_normalize(m.est_h(hist))
             h_hat = m.dec_h(lh_s)
             parts["latent_h"] = F.mse_loss(lh_s, lh_t)
