@@ -26,7 +26,7 @@ def test_flat_preset_is_the_quick_start():
     p = make_preset("flat")
     assert p.terrain == "flat" and p.gait_prior and dict(p.critic_weights) == {"stable": 0.25}
     assert dict(p.reward_weights) == {"flat_orientation": -5.0, "track_lin_l2": 1.0}
-    assert dict(p.reward_ramps) == {"track_lin_l2": (200, 250)} and not make_preset("perceptive").reward_ramps
+    assert dict(p.reward_ramps) == {"track_lin_l2": (150, 200)} and not make_preset("perceptive").reward_ramps
     assert dict(make_preset("perceptive").critic_weights) == {"stable": 0.5}
     assert not p.perception and not p.randomization.terms and not p.pushes.enabled
     assert (p.num_envs, p.steps_per_env, p.iterations, p.epochs) == (512, 12, 600, 3)

@@ -196,7 +196,7 @@ def test_default_critic_weights_follow_the_groups(tmp_path):
     assert c["learner"]["critic_weights"] == {"stable": 0.25}  # the flat preset's
     assert c["learner"]["num_epochs"] == 3 and "num_epochs=3" in " ".join(r.stderr.split())
     assert c["reward"]["terms"]["flat_orientation"] == {"weight": -5.0, "group": "loco", "gated": False}
-    l2 = {"weight": 1.0, "group": "loco", "gated": False, "ramp": [200, 250]}  # ramped in
+    l2 = {"weight": 1.0, "group": "loco", "gated": False, "ramp": [150, 200]}  # ramped in
     assert c["reward"]["terms"]["track_lin_l2"] == l2
     r = tron1(
         "train", *SMALL, "--iterations", "1", "--ablation", "single-critic", "--run-dir", str(tmp_path / "b")
