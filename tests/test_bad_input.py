@@ -113,6 +113,53 @@ def test_unusable_output_locations_are_refused_before_the_work(tiny_ckpt, tmp_pa
     assert blocker.read_text() == "in the way" and not (tmp_path / "r").exists()
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_a_place_that_refuses_folders_is_refused_before_the_work(tmp_path):
+    # os.access says yes for root everywhere; /proc still refuses a new folder
+    r = tron1("train", "--run-dir", "/proc/tron1-run")
+    one_error_line(r, 2, "--run-dir /proc/tron1-run: cannot create anything in /proc")
+
+
+def test_the_writability_probe_leaves_nothing_behind(tmp_path):
+    from tron1cli.fileio import check_output_dir
+
+    assert check_output_dir(tmp_path / "a" / "b", "--out") is False
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--precision", "foo"], "--precision must be one of"),
+        (["--learner", "foo=1"], "--learner: unknown or non-scalar learner setting 'foo'"),
+        (["--run-dir", "{file}"], "is a file, not a folder"),
+    ],
+)
+def test_train_refuses_bad_options_before_loading_torch(tmp_path, args, text):
+    # the option checks alone refuse these: torch (2-3 s to import) is never loaded
+    blocker = tmp_path / "blocker.txt"
+    blocker.write_text("in the way")
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-X",
+            "importtime",
+            "-m",
+            "tron1cli",
+            "train",
+            *(a.format(file=blocker) for a in args),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    errors = [x for x in r.stderr.splitlines() if not x.startswith("import time:")]
+    assert r.returncode == 2 and len(errors) == 1 and text in errors[0], r.stderr[-2000:]
+    imported = {x.rsplit("|", 1)[-1].strip() for x in r.stderr.splitlines() if x.startswith("import time:")}
+    assert "tron1cli.cli.train" in imported and "torch" not in imported
+
+
 # -- 3. no non-finite policy ships; training that goes non-finite stops ------------------------
 
 

@@ -85,6 +85,10 @@ def _check_can_create(folder: Path, option: str, shown: Path) -> None:
         raise UsageError(f"{option} {shown}: cannot make a folder there, {existing} is a file")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {shown}: no permission to write in {existing}")
+    try:  # os.access passes for root everywhere; some places (/proc, /sys) still refuse a folder
+        os.rmdir(tempfile.mkdtemp(prefix=".tron1-probe-", dir=existing))
+    except OSError as e:
+        raise UsageError(f"{option} {shown}: cannot create anything in {existing} ({e.strerror})") from e
 
 
 def check_output_file(path: Path | str, option: str, inputs: Iterable[Path | str] = ()) -> bool:

@@ -9,6 +9,7 @@ from rich import box
 from rich.table import Table
 
 from tron1cli.cli.common import check_outputs, err, fail, finite, out
+from tron1cli.train.layout import METRICS
 
 
 def report(
@@ -38,7 +39,7 @@ def report(
 
     if png is not None and png.suffix.lower() != ".png":
         fail(f"--png {png}: the file must end in .png, e.g. --png curves.png", 2)
-    check_outputs(files=[("--png", png)], inputs=[Path(d) / "metrics.jsonl" for d in run_dirs])
+    check_outputs(files=[("--png", png)], inputs=[Path(d) / METRICS for d in run_dirs])
     try:
         rows = campaign_phases(run_dirs)
     except ValueError as e:

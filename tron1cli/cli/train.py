@@ -303,16 +303,24 @@ def train(
         if not randomization.terms:
             fail("--randomize-skip needs Table III randomisation on (--randomize)", 2)
         randomization = skipped
+    settings = {}
+    if "learner" in given:
+        try:
+            settings = _learner_settings(learner)
+        except ValueError as e:
+            fail(f"--learner: {e}", 2)
     device = resolve_device(device)
-    # torch (about 2 s to import on 2 cores) loads from here on, once the options above are checked
     precision = resolve_precision(precision, device)
     check_backend(backend)
     threads = threads or available_cores()
-    from tron1cli.learn import tune_glibc_malloc
-    from tron1cli.train.runner import Trainer, check_run_dir, run_config
+    from tron1cli.train.layout import check_run_dir, checkpoint_dir
 
     check_run_dir(run_dir, resume)
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
+    # torch (2-3 s to import on 2 cores) loads from here on, once the options above are checked
+    from tron1cli.learn import tune_glibc_malloc
+    from tron1cli.train.runner import Trainer, run_config
+
     tune_glibc_malloc()
     try:
         push_cfg = base.pushes
@@ -345,11 +353,7 @@ def train(
         )
     except ValueError as e:
         fail(str(e), 2)
-    if "learner" in given:
-        try:
-            cfg = replace(cfg, learner=replace(cfg.learner, **_learner_settings(learner)))
-        except ValueError as e:
-            fail(f"--learner: {e}", 2)
+    cfg = replace(cfg, learner=replace(cfg.learner, **settings))
     n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
     if n_teacher >= cfg.env.num_envs:
         fail(
@@ -357,7 +361,7 @@ def train(
             "student env: the student is the policy that is exported and deployed; take a smaller ratio",
             2,
         )
-    if init is not None and Path(init).resolve().parent == (run_dir / "checkpoints").resolve():
+    if init is not None and Path(init).resolve().parent == checkpoint_dir(run_dir).resolve():
         fail(f"--init {init} lies in this run's own checkpoints; give another run's checkpoint", 2)
     trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init, backend=backend)
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=False)
@@ -376,13 +380,14 @@ def _resume(
         fail(str(e), 2)
     device = resolve_device(device)
     precision = resolve_precision(precision, device) if _given(ctx, "precision") else None  # None: as saved
-    from tron1cli.train.runner import Trainer, check_run_dir
+    from tron1cli.train.layout import check_run_dir
 
     check_run_dir(run_dir, True)
     check_outputs(files=[rerun_file(target)])
     _refuse_changed_options(ctx, run_dir)
     check_backend(backend)
     from tron1cli.learn import tune_glibc_malloc
+    from tron1cli.train.runner import Trainer
 
     tune_glibc_malloc()
     trainer = Trainer(
@@ -461,9 +466,10 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
     import json
 
     from tron1cli.train.checkpoint import load_checkpoint
+    from tron1cli.train.layout import latest_checkpoint
     from tron1cli.train.runner import RunConfig
 
-    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    state = load_checkpoint(latest_checkpoint(run_dir))
     try:
         run_cfg = RunConfig.from_dict(json.loads(state["config"]))
         saved = _saved_values(run_cfg)

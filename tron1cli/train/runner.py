@@ -1,12 +1,6 @@
 """The training loop: env core <-> Vision-CTS learner, with checkpoints, metrics and resume.
 
-A run directory holds:
-
-- ``config.json``: the resolved run configuration (env, reward, learner, seed, ...);
-- ``checkpoints/ckpt_<iteration>.pt`` and ``checkpoints/latest.pt``: versioned plain dicts of
-  tensors plus the config, written atomically;
-- ``metrics.jsonl``: one JSON object per iteration (throughput, per-group rewards, per-term
-  episode sums, survival, episode length, tracking error, losses, learning rate, ...).
+What a run directory holds: :mod:`tron1cli.train.layout`.
 """
 
 from __future__ import annotations
@@ -32,6 +26,7 @@ from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.learn.warm_start import WarmStart, warm_start
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
+from tron1cli.train.layout import CONFIG, LATEST, METRICS, checkpoint_dir
 from tron1cli.train.metrics import EpisodeStats
 
 
@@ -184,14 +179,14 @@ class Trainer:
         backend: str = "mujoco",
     ) -> None:
         self.run_dir = Path(run_dir)
-        self.ckpt_dir = self.run_dir / "checkpoints"
-        self.metrics_path = self.run_dir / "metrics.jsonl"
+        self.ckpt_dir = checkpoint_dir(self.run_dir)
+        self.metrics_path = self.run_dir / METRICS
         state = None
         if init is not None and resume:
             raise UsageError("--init starts a new run from other weights; --resume continues this one")
         source = load_checkpoint(init) if init is not None else None
         if resume:
-            state = load_checkpoint(self.ckpt_dir / "latest.pt")
+            state = load_checkpoint(self.ckpt_dir / LATEST)
             cfg = RunConfig.from_dict(json.loads(state["config"]))
             if iterations is not None:
                 cfg = replace(cfg, iterations=iterations)
@@ -203,12 +198,12 @@ class Trainer:
                 cfg = replace(cfg, learner=replace(cfg.learner, precision=precision))
         elif cfg is None:
             raise UsageError("a new run needs a configuration")
-        elif (self.ckpt_dir / "latest.pt").exists():
+        elif (self.ckpt_dir / LATEST).exists():
             raise UsageError(f"{self.run_dir} already holds a run: pass --resume to continue it")
         self.cfg = cfg
         # a save killed midway leaves its temp file; nothing else would ever remove it
         clean_stale_temps(self.ckpt_dir)
-        clean_stale_temps(self.run_dir, ".config.json")
+        clean_stale_temps(self.run_dir, f".{CONFIG}")
         torch.manual_seed(cfg.env.seed)
         torch.set_num_threads(cfg.env.nthread)
         self.env = Tron1Env(cfg.env, cfg.reward, backend=backend)
@@ -282,7 +277,7 @@ class Trainer:
         return [k for (k, _), good in zip(named, ok.tolist(), strict=True) if not good]
 
     def _stop_nonfinite(self, what: str) -> None:
-        latest = self.ckpt_dir / "latest.pt"
+        latest = self.ckpt_dir / LATEST
         kept = (
             f"{latest} (iteration {self.saved_iteration}) is the last good checkpoint; --resume "
             "continues from it"
@@ -326,7 +321,7 @@ class Trainer:
         if names:  # never replace a good checkpoint with a broken one
             raise NonFiniteTraining(
                 f"not saving iteration {self.iteration}: non-finite values in {names[0]}; "
-                f"{self.ckpt_dir / 'latest.pt'} keeps the last good state"
+                f"{self.ckpt_dir / LATEST} keeps the last good state"
             )
         payload = {
             "config": json.dumps(self.cfg.to_dict()),
@@ -338,7 +333,7 @@ class Trainer:
             "curriculum": {k: torch.from_numpy(v) for k, v in self.env.curriculum_state().items()},
             "episode_stats": self.stats.state_dict(),
         }
-        latest = self.ckpt_dir / "latest.pt"
+        latest = self.ckpt_dir / LATEST
         save_checkpoint(latest, payload)
         if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
             save_checkpoint(self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt", payload)
@@ -347,7 +342,7 @@ class Trainer:
 
     def _write_config(self) -> None:
         data = json.dumps(self.cfg.to_dict(), indent=2).encode()
-        atomic_write(self.run_dir / "config.json", lambda f: f.write(data), fsync=False)
+        atomic_write(self.run_dir / CONFIG, lambda f: f.write(data), fsync=False)
 
     # -- the loop ---------------------------------------------------------------------------
     def iterate(
@@ -462,13 +457,3 @@ class Trainer:
 
 class NonFiniteTraining(Tron1Error):
     """A loss, a weight or a normaliser statistic went NaN or inf; the run stops unsaved."""
-
-
-def check_run_dir(run_dir: Path, resume: bool) -> None:
-    """Clear errors before anything is built: a resume without a run, a run directory that cannot
-    be made or written."""
-    from tron1cli.fileio import check_output_dir
-
-    check_output_dir(run_dir, "--run-dir")
-    if resume and not (Path(run_dir) / "checkpoints" / "latest.pt").exists():
-        raise Tron1Error(f"nothing to resume in {run_dir}: no checkpoints/latest.pt")

@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from tron1cli.train.layout import METRICS
+
 #: the card's columns: header -> (metrics keys, decimals)
 TABLE_COLUMNS: dict[str, tuple[tuple[str, ...], int]] = {
     "teacher survival": (("teacher/survival",), 2),
@@ -27,7 +29,7 @@ TABLE_COLUMNS: dict[str, tuple[tuple[str, ...], int]] = {
 def read_metrics(run_dir: Path) -> list[dict]:
     """The per-iteration metrics of a run directory (``metrics.jsonl``). A cut-off last line (a
     run killed while writing it) is left out; ValueError for a missing file or a corrupt line."""
-    path = Path(run_dir) / "metrics.jsonl"
+    path = Path(run_dir) / METRICS
     if not path.is_file():
         raise ValueError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
     lines = path.read_text().splitlines()
