@@ -240,6 +240,45 @@ def test_warp_puts_each_world_on_its_own_tile():
 
 
 @pytest.mark.slow
+def test_the_captured_graph_steps_as_the_launches_do_and_sees_later_writes():
+    """A step's substeps are recorded once as a graph; replaying it gives the trajectory of
+    launching every kernel (bitwise on warp's CPU device), and a model write or a tile change
+    made after the capture reaches the replay (the graph holds the arrays written in place)."""
+    pytest.importorskip("mujoco_warp")
+    from tron1cli.env.physics_warp import WarpPhysics
+
+    bank, n = _stairs(), 4
+    first = np.array([bank.K - 1, 1, bank.K - 1, 2])
+    later = first[[1, 0, 3, 2]]  # worlds 0 and 1, 2 and 3 swap tiles after the capture
+    xy = _on_treads(bank, first)
+    m = build_model(bank=bank)
+    base = m.body("base").id
+    runs = {}
+    for graph in (True, False):
+        phys = WarpPhysics([copy.copy(m) for _ in range(n)], 4, bank=bank, graph=graph)
+        out = []
+        for tiles, where in ((first, xy), (later, xy[[1, 0, 3, 2]])):
+            phys.set_tiles(np.arange(n), bank, tiles)
+            ground = ground_height(bank.heights, tiles, where, bank.res)
+            qpos = np.tile(m.qpos0, (n, 1))
+            qpos[:, :2], qpos[:, 2], qpos[:, 7:] = where, ground + 0.85, robot.DEFAULT_POSE
+            phys.set_state(np.arange(n), qpos, np.zeros((n, phys.nv)))
+            out.append(_run(phys, n, steps=10))
+            assert np.all(phys.qpos[:, 2] - ground > 0.5)  # on the tiles of this round
+            phys.write_models(np.array([2]), "body_mass", (base,), np.array([m.body_mass[base] + 5.0]))
+        runs[graph] = np.array(out)
+        assert (phys._graph is not None) == graph
+        phys.close()
+    # float sums on a GPU may be ordered differently launch to launch; on the CPU device: equal
+    assert np.abs(runs[True] - runs[False]).max() < 1e-5
+    # round 2 repeats round 1 with worlds swapped: world 3 now does what world 2 did, while
+    # world 2, on world 3's tile and spot, carries the payload written after round 1
+    r = runs[True]
+    assert np.abs(r[1, :, 3] - r[0, :, 2]).max() < 1e-5
+    assert np.abs(r[1, :, 2] - r[0, :, 3]).max() > 1e-4
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("terrain", ["flat", "stairs"])
 def test_a_tiny_training_run_on_warp_through_the_cli(tmp_path, terrain):
     """Flat ground, and stairs with the perceptive preset (height scans, depth, Table III

@@ -75,6 +75,8 @@ class WarpPhysics(BatchedPhysics):
         device: warp device (``cpu``, ``cuda:0``); default as :func:`warp_device`.
         bank: the terrain bank the models' height field takes its tiles from (needed when they
             have one); the worlds start on tile 0 until :meth:`set_tiles`.
+        graph: record a step's substeps once as a graph and replay it (one launch a step instead
+            of hundreds from Python); False launches each kernel every step.
     """
 
     def __init__(
@@ -83,6 +85,7 @@ class WarpPhysics(BatchedPhysics):
         nsub: int,
         device: str | None = None,
         bank: TerrainBank | None = None,
+        graph: bool = True,
     ) -> None:
         terrain = bool(models) and models[0].nhfield > 0
         if terrain and bank is None:
@@ -110,7 +113,15 @@ class WarpPhysics(BatchedPhysics):
             rows[:] = np.stack([getattr(m, name) for m in self.models]).reshape(rows.shape)
             getattr(self._m, name).assign(rows)
         self._ground = dev_model.geom(GROUND_NAME).id
-        self._xfrc = np.zeros((self.n, self.nbody, 6), dtype=np.float32)
+        # one step's inputs and outputs on the device, substep first: uploaded and read back once
+        # a step, so the substeps are device work only (one graph launch where captured)
+        with wp.ScopedDevice(self.device):
+            self._ctrl_dev = wp.zeros((nsub, self.n, self.nu), dtype=wp.float32)
+            self._xfrc_dev = wp.zeros((nsub, self.n, self.nbody), dtype=self._d.xfrc_applied.dtype)
+            self._traj_dev = wp.zeros((nsub, self.n, self.nstate), dtype=wp.float32)
+            self._sens_dev = wp.zeros((nsub, self.n, self.nsensordata), dtype=wp.float32)
+        self._use_graph = graph
+        self._graph = None
 
     def write_models(self, ids: np.ndarray, name: str, index: tuple, values: np.ndarray) -> None:
         """As :meth:`BatchedPhysics.write_models`, and the device rows of the worlds ``ids``
@@ -139,24 +150,49 @@ class WarpPhysics(BatchedPhysics):
 
     def rollout(self) -> None:
         """Step every world ``nsub`` times from ``state`` under ``control``; as BatchedPhysics,
-        with no solver warm start carried between calls."""
-        wp, mjw, m, d = self._wp, self._mjw, self._m, self._d
-        nu, a = self.nu, self.nu
+        with no solver warm start carried between calls. Three uploads (state, controls, wrenches)
+        and two read-backs (states and sensor data of every substep) a call."""
+        wp = self._wp
+        c = self.control.transpose(1, 0, 2)  # (nsub, N, ncontrol)
         with wp.ScopedDevice(self.device):
             self._state_dev.assign(self.state.astype(np.float32))
-            mjw.set_state(m, d, self._state_dev, int(STATE_SPEC))
-            d.qacc_warmstart.zero_()
-            for s in range(self.nsub):
-                d.ctrl.assign(self.control[:, s, :nu].astype(np.float32))
-                self._xfrc[:] = self.control[:, s, a:].reshape(self.n, self.nbody, 6)
-                d.xfrc_applied.assign(self._xfrc)
-                mjw.step(m, d)
-                mjw.get_state(m, d, self._state_dev, int(STATE_SPEC))
-                self.traj[:, s] = self._state_dev.numpy()
-                self.sensordata[:, s] = d.sensordata.numpy()
+            self._ctrl_dev.assign(np.ascontiguousarray(c[..., : self.nu], dtype=np.float32))
+            xfrc = c[..., self.nu :].reshape(self.nsub, self.n, self.nbody, 6)
+            self._xfrc_dev.assign(np.ascontiguousarray(xfrc, dtype=np.float32))
+            if not self._use_graph:
+                self._substeps()
+            else:
+                if self._graph is None:
+                    self._graph = self._capture()
+                wp.capture_launch(self._graph)
+            self.traj[:] = self._traj_dev.numpy().transpose(1, 0, 2)
+            self.sensordata[:] = self._sens_dev.numpy().transpose(1, 0, 2)
         self.state[:] = self.traj[:, -1]
+
+    def _substeps(self) -> None:
+        """The device work of one :meth:`rollout`: state in, ``nsub`` steps, each substep's state
+        and sensor data out. Device arrays only, the same ones every call (what a graph needs)."""
+        wp, mjw, m, d = self._wp, self._mjw, self._m, self._d
+        mjw.set_state(m, d, self._state_dev, int(STATE_SPEC))
+        d.qacc_warmstart.zero_()
+        for s in range(self.nsub):
+            wp.copy(d.ctrl, self._ctrl_dev[s])
+            wp.copy(d.xfrc_applied, self._xfrc_dev[s])
+            mjw.step(m, d)
+            mjw.get_state(m, d, self._traj_dev[s], int(STATE_SPEC))
+            wp.copy(self._sens_dev[s], d.sensordata)
+
+    def _capture(self):
+        """:meth:`_substeps` recorded as one graph (a CUDA graph on a GPU; warp's replayed
+        operation list on its CPU device). It holds the device arrays' addresses: the model
+        fields are written in place (``assign``), never replaced, so it stays valid."""
+        wp = self._wp
+        with wp.ScopedCapture(device=self.device) as capture:
+            self._substeps()
+        return capture.graph
 
     def close(self) -> None:
         """Release the device arrays (the host side holds nothing to shut down)."""
         super().close()
-        self._m = self._d = self._state_dev = None
+        self._m = self._d = self._state_dev = self._graph = None
+        self._ctrl_dev = self._xfrc_dev = self._traj_dev = self._sens_dev = None
