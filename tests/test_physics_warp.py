@@ -128,7 +128,8 @@ def _device_rows_match_host_models(gpu) -> None:
 
 def test_table_iii_reaches_the_warp_device_rows_of_the_worlds_reset():
     """The randomiser's (k, ...) arrays land in the batched device rows of exactly the envs
-    reset, equal to what the host models (the CPU engine's) hold, for every batched field."""
+    reset; a world's host model (which the forward after a reset runs on) holds its device rows
+    by then, for every batched field."""
     pytest.importorskip("mujoco_warp")
     from tron1cli.config.env import EnvConfig
     from tron1cli.env.core import Tron1Env
@@ -145,6 +146,15 @@ def test_table_iii_reaches_the_warp_device_rows_of_the_worlds_reset():
     changed = np.flatnonzero(after != before)
     assert set(changed) <= {1, 4} and len(changed) == 2  # payloads are continuous: both moved
     _device_rows_match_host_models(env.physics)
+    # a write between resets (the restitution gate's, each step) goes to the device rows only;
+    # the world's host model takes them when its forward runs, after its next reset
+    phys, g = env.physics, env.randomizer.contact_geoms
+    host = phys.models[2].geom_solref[g].copy()
+    phys.write_models(np.array([2]), "geom_solref", (g,), np.array([[[0.02, 0.3], [0.02, 0.3]]]))
+    assert np.allclose(phys._m.geom_solref.numpy()[2, g], [0.02, 0.3])
+    assert np.array_equal(phys.models[2].geom_solref[g], host)
+    phys.forward(np.array([2]), np.zeros((1, phys.nu)))
+    _device_rows_match_host_models(phys)
     env.physics.close()
 
 

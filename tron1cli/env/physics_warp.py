@@ -9,7 +9,8 @@ Per-env model fields the randomiser writes (Table III: mass, CoM, friction, cont
 gains, torque limits) are batched model fields on the device, one row per world, taken from the
 host models once at construction; afterwards :meth:`WarpPhysics.write_models` writes the sampled
 (k, ...) values into the rows of the worlds named in one array operation and uploads the field
-once (the host models get them too: ``forward`` after resets runs there).
+once. The device rows are the truth: ``forward`` after resets runs on the host, and copies the
+reset worlds' rows to their host models first.
 
 Terrain: flat ground is a plane; a height-field terrain is one device model holding every tile of
 the bank as its own height field (:func:`~tron1cli.env.scene.build_model` with ``all_tiles``),
@@ -69,8 +70,9 @@ class WarpPhysics(BatchedPhysics):
     """Batched physics over ``len(models)`` worlds on a warp device.
 
     Args:
-        models: one MjModel per env (as BatchedPhysics; the host copies the env core and the
-            randomiser edit; :meth:`sync` carries their edits to the device).
+        models: one MjModel per env (as BatchedPhysics); their values of :data:`BATCHED_FIELDS`
+            at construction are the worlds' first device rows, edited later by
+            :meth:`write_models`.
         nsub: physics substeps per :meth:`step`.
         device: warp device (``cpu``, ``cuda:0``); default as :func:`warp_device`.
         bank: the terrain bank the models' height field takes its tiles from (needed when they
@@ -124,11 +126,12 @@ class WarpPhysics(BatchedPhysics):
         self._graph = None
 
     def write_models(self, ids: np.ndarray, name: str, index: tuple, values: np.ndarray) -> None:
-        """As :meth:`BatchedPhysics.write_models`, and the device rows of the worlds ``ids``
-        (a field of :data:`BATCHED_FIELDS`) in one array write and one upload."""
+        """As :meth:`BatchedPhysics.write_models`, on the device rows of the worlds ``ids`` (a field
+        of :data:`BATCHED_FIELDS`): one array write and one upload, no loop over worlds. The host
+        models are left alone; :meth:`forward` copies a world's rows to its host model when it
+        needs them (the restitution gate writes hundreds of worlds a step, resets a few)."""
         if name not in BATCHED_FIELDS:
             raise ValueError(f"{name} is not a batched field of the warp model")
-        super().write_models(ids, name, index, values)
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size == 0:
             return
@@ -139,6 +142,16 @@ class WarpPhysics(BatchedPhysics):
         part[(slice(None), *index)] = v.reshape(len(ids), *(1,) * (target.ndim - v.ndim), *v.shape[1:])
         rows[ids] = part
         getattr(self._m, name).assign(rows)
+
+    def forward(self, ids: np.ndarray, ctrl: np.ndarray) -> None:
+        """As :meth:`BatchedPhysics.forward` (on the host), after the worlds' own device rows of
+        :data:`BATCHED_FIELDS` are copied to their host models."""
+        for i in np.asarray(ids):
+            m = self.models[i]
+            for name in BATCHED_FIELDS:
+                field = getattr(m, name)
+                field[...] = self._mirror[name][i].reshape(field.shape)
+        super().forward(ids, ctrl)
 
     def set_tiles(self, ids: np.ndarray, bank: TerrainBank, tiles: np.ndarray) -> None:
         """Put the worlds of envs ``ids`` on tiles ``tiles`` (k,): their ground geom points at the
