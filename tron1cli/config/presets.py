@@ -12,6 +12,10 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
+from tron1cli.learn.config import LearnerConfig
+
+#: the learner's defaults, which a preset starts from (plain dataclasses: no torch import)
+_LEARNER = LearnerConfig()
 
 DEFAULT_STABLE_WEIGHT = 0.5
 """Weight of the stability critic's normalised advantage in our presets (the locomotion one has
@@ -79,9 +83,9 @@ class TrainPreset:
     terrain: str = "flat"
     num_envs: int = 1024
     iterations: int = 300
-    steps_per_env: int = 24
-    epochs: int = 5
-    hidden: tuple[int, ...] = (256, 128, 64)
+    steps_per_env: int = _LEARNER.num_steps_per_env
+    epochs: int = _LEARNER.num_epochs
+    hidden: tuple[int, ...] = _LEARNER.actor_hidden
     teacher_ratio: float = 0.5
     gait_prior: bool = True
     critic_weights: Mapping[str, float] = field(
