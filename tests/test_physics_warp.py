@@ -289,6 +289,28 @@ def test_the_captured_graph_steps_as_the_launches_do_and_sees_later_writes():
 
 
 @pytest.mark.slow
+def test_a_step_that_cannot_be_recorded_is_launched_kernel_by_kernel(monkeypatch, capsys):
+    pytest.importorskip("mujoco_warp")
+    from tron1cli.env.physics_warp import WarpPhysics
+
+    def refuse(self):
+        raise RuntimeError("stream capture invalidated\nsecond line")
+
+    n = 2
+    eager = WarpPhysics(_worlds(n), 4, graph=False)
+    monkeypatch.setattr(WarpPhysics, "_capture", refuse)
+    fallback = WarpPhysics(_worlds(n), 4)
+    err = capsys.readouterr().err
+    assert fallback.graph_error == "RuntimeError: stream capture invalidated"
+    assert err.count("\n") == 1 and err.startswith("warning: warp could not record a physics step")
+    for p in (eager, fallback):
+        _start(p, n)
+    assert np.array_equal(_run(eager, n, steps=5), _run(fallback, n, steps=5))
+    eager.close()
+    fallback.close()
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("terrain", ["flat", "stairs"])
 def test_a_tiny_training_run_on_warp_through_the_cli(tmp_path, terrain):
     """Flat ground, and stairs with the perceptive preset (height scans, depth, Table III

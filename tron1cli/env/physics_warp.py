@@ -25,6 +25,7 @@ when no GPU is visible (slow: for development and tests), and compiles its kerne
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 
 import mujoco
@@ -77,8 +78,10 @@ class WarpPhysics(BatchedPhysics):
         device: warp device (``cpu``, ``cuda:0``); default as :func:`warp_device`.
         bank: the terrain bank the models' height field takes its tiles from (needed when they
             have one); the worlds start on tile 0 until :meth:`set_tiles`.
-        graph: record a step's substeps once as a graph and replay it (one launch a step instead
-            of hundreds from Python); False launches each kernel every step.
+        graph: record a step's substeps once, here, as a graph and replay it every step (one
+            launch a step instead of hundreds from Python); False launches each kernel every
+            step, and so does a recording that fails (one ``warning:`` line on stderr, the
+            reason in :attr:`graph_error`).
     """
 
     def __init__(
@@ -122,8 +125,19 @@ class WarpPhysics(BatchedPhysics):
             self._xfrc_dev = wp.zeros((nsub, self.n, self.nbody), dtype=self._d.xfrc_applied.dtype)
             self._traj_dev = wp.zeros((nsub, self.n, self.nstate), dtype=wp.float32)
             self._sens_dev = wp.zeros((nsub, self.n, self.nsensordata), dtype=wp.float32)
-        self._use_graph = graph
         self._graph = None
+        #: why the step is not recorded (it launches each kernel instead), or None
+        self.graph_error: str | None = None
+        if graph:
+            try:
+                self._graph = self._capture()
+            except Exception as e:  # e.g. a mujoco-warp whose step reads back from the device
+                first = str(e).strip().splitlines()
+                self.graph_error = f"{type(e).__name__}: {first[0]}" if first else type(e).__name__
+                sys.stderr.write(
+                    f"warning: warp could not record a physics step ({self.graph_error}); "
+                    "launching each kernel instead, which is slower\n"
+                )
 
     def write_models(self, ids: np.ndarray, name: str, index: tuple, values: np.ndarray) -> None:
         """As :meth:`BatchedPhysics.write_models`, on the device rows of the worlds ``ids`` (a field
@@ -172,12 +186,10 @@ class WarpPhysics(BatchedPhysics):
             self._ctrl_dev.assign(np.ascontiguousarray(c[..., : self.nu], dtype=np.float32))
             xfrc = c[..., self.nu :].reshape(self.nsub, self.n, self.nbody, 6)
             self._xfrc_dev.assign(np.ascontiguousarray(xfrc, dtype=np.float32))
-            if not self._use_graph:
-                self._substeps()
-            else:
-                if self._graph is None:
-                    self._graph = self._capture()
+            if self._graph is not None:
                 wp.capture_launch(self._graph)
+            else:
+                self._substeps()
             self.traj[:] = self._traj_dev.numpy().transpose(1, 0, 2)
             self.sensordata[:] = self._sens_dev.numpy().transpose(1, 0, 2)
         self.state[:] = self.traj[:, -1]
@@ -200,7 +212,7 @@ class WarpPhysics(BatchedPhysics):
         operation list on its CPU device). It holds the device arrays' addresses: the model
         fields are written in place (``assign``), never replaced, so it stays valid."""
         wp = self._wp
-        with wp.ScopedCapture(device=self.device) as capture:
+        with wp.ScopedDevice(self.device), wp.ScopedCapture(device=self.device) as capture:
             self._substeps()
         return capture.graph
 
