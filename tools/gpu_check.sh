@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# The GPU figures the README leaves "not measured" (issue 22), in one run of at most ~9 minutes:
+# The GPU figures the README leaves "not measured" (issue 22), in one run of about 9 minutes:
 #   bash tools/gpu_check.sh OUT_DIR [MINUTES_OF_TRAINING]
+# or in parts, e.g. PARTS="tests bench" then PARTS=train (each step has a time limit; all of them
+# together add up to 13 minutes at most with 3 minutes of training).
 # Needs a CUDA GPU that warp sees, and tron1cli's dependencies plus the `warp` extra importable
 # (installed, or unpacked with `pip install --no-index --target DIR` and DIR on PYTHONPATH; the
 # project itself is run from this checkout, so it needs no install). Writes into OUT_DIR:
@@ -12,7 +14,7 @@
 #   train.log, eval/             `tron1 train --terrain flat` for MINUTES (default 3) on warp and
 #                                the GPU, then `tron1 eval` of its checkpoint on flat ground
 # Each step has its own time limit, and a failing step does not stop the later ones; steps.txt
-# says how each ended. ENVS (default "1024 4096"), BENCH_STEPS (100) and DEVICE (cuda, the
+# says how each ended. PARTS (default "tests bench train") picks the parts to run. ENVS (default "1024 4096"), BENCH_STEPS (100) and DEVICE (cuda, the
 # learner's) shrink it for a dry run on a machine without a GPU.
 set -uo pipefail
 out=${1:?usage: tools/gpu_check.sh OUT_DIR [MINUTES]}
@@ -21,6 +23,7 @@ envs_list=${ENVS:-1024 4096}
 steps=${BENCH_STEPS:-100}
 device=${DEVICE:-cuda}
 big=${envs_list##* }
+parts=" ${PARTS:-tests bench train} "
 mkdir -p "$out"
 cd "$(dirname "$0")/.."
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
@@ -34,18 +37,24 @@ step() {  # step NAME SECONDS COMMAND...: run with a limit, say how it ended
 
 { nvidia-smi; python3 -c "import torch, warp, mujoco, mujoco_warp; print('torch', torch.__version__, \
 torch.cuda.is_available(), 'warp', warp.__version__, 'mujoco', mujoco.__version__)"; } >"$out/gpu.txt" 2>&1
-step tests 240 python3 -m pytest -q -m slow tests/test_physics_warp.py -p no:cacheprovider \
-  >"$out/tests.log" 2>&1
-for envs in $envs_list; do
-  step "bench flat $envs" 60 "${tron1[@]}" bench --backend warp --envs "$envs" --steps "$steps" --json \
-    >"$out/bench_flat_$envs.json"
-done
-step "bench stairs $big" 90 "${tron1[@]}" bench --backend warp --envs "$big" --steps "$steps" \
-  --terrain stairs --depth --json >"$out/bench_stairs_$big.json"
-step "bench train flat" 90 "${tron1[@]}" bench --train --backend warp --device "$device" --envs "$big" --rounds 2 \
-  --json >"$out/bench_train_flat.json"
-step train $((minutes * 60 + 90)) "${tron1[@]}" train --terrain flat --backend warp --device "$device" \
-  --minutes "$minutes" --run-dir "$out/run" >"$out/train.log" 2>&1
-step eval 90 "${tron1[@]}" eval "$out/run/checkpoints/latest.pt" --terrain flat --envs 256 --backend warp \
-  --out "$out/eval" >"$out/eval.log" 2>&1
-rm -rf "$out/run/checkpoints"  # the figures are in train.log and eval/; checkpoints stay behind
+if [[ $parts == *" tests "* ]]; then
+  step tests 180 python3 -m pytest -q -m slow tests/test_physics_warp.py -p no:cacheprovider \
+    >"$out/tests.log" 2>&1
+fi
+if [[ $parts == *" bench "* ]]; then
+  for envs in $envs_list; do
+    step "bench flat $envs" 60 "${tron1[@]}" bench --backend warp --envs "$envs" --steps "$steps" \
+      --json >"$out/bench_flat_$envs.json"
+  done
+  step "bench stairs $big" 90 "${tron1[@]}" bench --backend warp --envs "$big" --steps "$steps" \
+    --terrain stairs --depth --json >"$out/bench_stairs_$big.json"
+  step "bench train flat" 90 "${tron1[@]}" bench --train --backend warp --device "$device" \
+    --envs "$big" --rounds 2 --json >"$out/bench_train_flat.json"
+fi
+if [[ $parts == *" train "* ]]; then
+  step train $((minutes * 60 + 60)) "${tron1[@]}" train --terrain flat --backend warp \
+    --device "$device" --minutes "$minutes" --run-dir "$out/run" >"$out/train.log" 2>&1
+  step eval 60 "${tron1[@]}" eval "$out/run/checkpoints/latest.pt" --terrain flat --envs 256 \
+    --backend warp --out "$out/eval" >"$out/eval.log" 2>&1
+  rm -rf "$out/run/checkpoints"  # the figures are in train.log and eval/; checkpoints stay behind
+fi
