@@ -26,7 +26,7 @@ from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.learn.warm_start import WarmStart, warm_start
 from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
-from tron1cli.train.layout import CONFIG, LATEST, METRICS, checkpoint_dir
+from tron1cli.train.layout import CONFIG, METRICS, checkpoint_dir, latest_checkpoint
 from tron1cli.train.metrics import EpisodeStats
 
 
@@ -180,13 +180,14 @@ class Trainer:
     ) -> None:
         self.run_dir = Path(run_dir)
         self.ckpt_dir = checkpoint_dir(self.run_dir)
+        self.latest = latest_checkpoint(self.run_dir)
         self.metrics_path = self.run_dir / METRICS
         state = None
         if init is not None and resume:
             raise UsageError("--init starts a new run from other weights; --resume continues this one")
         source = load_checkpoint(init) if init is not None else None
         if resume:
-            state = load_checkpoint(self.ckpt_dir / LATEST)
+            state = load_checkpoint(self.latest)
             cfg = RunConfig.from_dict(json.loads(state["config"]))
             if iterations is not None:
                 cfg = replace(cfg, iterations=iterations)
@@ -198,7 +199,7 @@ class Trainer:
                 cfg = replace(cfg, learner=replace(cfg.learner, precision=precision))
         elif cfg is None:
             raise UsageError("a new run needs a configuration")
-        elif (self.ckpt_dir / LATEST).exists():
+        elif self.latest.exists():
             raise UsageError(f"{self.run_dir} already holds a run: pass --resume to continue it")
         self.cfg = cfg
         # a save killed midway leaves its temp file; nothing else would ever remove it
@@ -277,9 +278,8 @@ class Trainer:
         return [k for (k, _), good in zip(named, ok.tolist(), strict=True) if not good]
 
     def _stop_nonfinite(self, what: str) -> None:
-        latest = self.ckpt_dir / LATEST
         kept = (
-            f"{latest} (iteration {self.saved_iteration}) is the last good checkpoint; --resume "
+            f"{self.latest} (iteration {self.saved_iteration}) is the last good checkpoint; --resume "
             "continues from it"
             if self.saved_iteration is not None
             else "no checkpoint had been saved yet"
@@ -321,7 +321,7 @@ class Trainer:
         if names:  # never replace a good checkpoint with a broken one
             raise NonFiniteTraining(
                 f"not saving iteration {self.iteration}: non-finite values in {names[0]}; "
-                f"{self.ckpt_dir / LATEST} keeps the last good state"
+                f"{self.latest} keeps the last good state"
             )
         payload = {
             "config": json.dumps(self.cfg.to_dict()),
@@ -333,12 +333,11 @@ class Trainer:
             "curriculum": {k: torch.from_numpy(v) for k, v in self.env.curriculum_state().items()},
             "episode_stats": self.stats.state_dict(),
         }
-        latest = self.ckpt_dir / LATEST
-        save_checkpoint(latest, payload)
+        save_checkpoint(self.latest, payload)
         if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
             save_checkpoint(self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt", payload)
         self.saved_iteration = self.iteration
-        return latest
+        return self.latest
 
     def _write_config(self) -> None:
         data = json.dumps(self.cfg.to_dict(), indent=2).encode()
