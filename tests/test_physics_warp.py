@@ -278,14 +278,42 @@ def test_the_captured_graph_steps_as_the_launches_do_and_sees_later_writes():
             phys.write_models(np.array([2]), "body_mass", (base,), np.array([m.body_mass[base] + 5.0]))
         runs[graph] = np.array(out)
         assert (phys._graph is not None) == graph
+        cpu = phys.device == "cpu"
         phys.close()
-    # float sums on a GPU may be ordered differently launch to launch; on the CPU device: equal
-    assert np.abs(runs[True] - runs[False]).max() < 1e-5
+    # equal on warp's CPU device; a GPU orders its float sums (contacts gathered by atomics) run
+    # to run and world to world, which an H200 showed as 3.7e-5 after 40 substeps: allow
+    # STATE_TOL, the gap to the CPU engine this module accepts
+    same = 1e-5 if cpu else STATE_TOL
+    assert np.abs(runs[True] - runs[False]).max() < same
     # round 2 repeats round 1 with worlds swapped: world 3 now does what world 2 did, while
-    # world 2, on world 3's tile and spot, carries the payload written after round 1
+    # world 2, on world 3's tile and spot, carries the 5 kg written after round 1 (0.68 apart)
     r = runs[True]
-    assert np.abs(r[1, :, 3] - r[0, :, 2]).max() < 1e-5
-    assert np.abs(r[1, :, 2] - r[0, :, 3]).max() > 1e-4
+    assert np.abs(r[1, :, 3] - r[0, :, 2]).max() < same
+    assert np.abs(r[1, :, 2] - r[0, :, 3]).max() > 0.1
+
+
+@pytest.mark.slow
+def test_the_warp_clock_stays_exact_over_a_whole_episode():
+    """Time is float64 on the host as on the CPU engine: 20 s of steps from a reset read exactly
+    k x 20 ms, so the env core's check for a world MuJoCo restarted (its time back at 0) flags
+    nothing. The device's float32 clock, re-uploaded each step, was 4e-5 s off after 4 s and every
+    world past 2 s was reset as unstable (found on an H200: 65,000 such resets in 2 minutes)."""
+    pytest.importorskip("mujoco_warp")
+    from tron1cli.env import terminations
+    from tron1cli.env.physics_warp import WarpPhysics
+
+    n, steps = 2, 1000
+    phys = WarpPhysics(_worlds(n), 4)
+    _start(phys, n)
+    ctrl = np.tile(robot.DEFAULT_POSE, (n, phys.nsub, 1))
+    policy_dt = phys.nsub * phys.models[0].opt.timestep
+    for k in range(1, steps + 1):
+        phys.step(ctrl, np.zeros((n, 6)))
+        assert not terminations.unstable_sim(phys.state, k * policy_dt, phys.qvel, 1e9).any(), k
+    assert np.abs(phys.state[:, 0] - steps * policy_dt).max() < 1e-9
+    substep = phys.traj[:, :, 0] - (steps - 1) * policy_dt
+    assert np.allclose(substep, phys.models[0].opt.timestep * np.arange(1, 5), atol=1e-9)
+    phys.close()
 
 
 @pytest.mark.slow

@@ -118,6 +118,7 @@ class WarpPhysics(BatchedPhysics):
             rows[:] = np.stack([getattr(m, name) for m in self.models]).reshape(rows.shape)
             getattr(self._m, name).assign(rows)
         self._ground = dev_model.geom(GROUND_NAME).id
+        self._dt = float(m0.opt.timestep)
         # one step's inputs and outputs on the device, substep first: uploaded and read back once
         # a step, so the substeps are device work only (one graph launch where captured)
         with wp.ScopedDevice(self.device):
@@ -190,8 +191,14 @@ class WarpPhysics(BatchedPhysics):
                 wp.capture_launch(self._graph)
             else:
                 self._substeps()
+            t0 = self.state[:, 0].copy()
             self.traj[:] = self._traj_dev.numpy().transpose(1, 0, 2)
             self.sensordata[:] = self._sens_dev.numpy().transpose(1, 0, 2)
+        # time in float64 as on the CPU engine: the device's float32 clock, re-uploaded every step,
+        # drifts by 4e-5 s after 4 s of episode, which the env core's check for MuJoCo's own
+        # resets (time restarting) took for a diverged world; mujoco-warp never restarts a world
+        # (a diverged one shows as NaN in the other columns, which stay the device's)
+        self.traj[:, :, 0] = t0[:, None] + self._dt * np.arange(1, self.nsub + 1)
         self.state[:] = self.traj[:, -1]
 
     def _substeps(self) -> None:
