@@ -96,11 +96,20 @@ class Tron1Env:
         # observation: a render replaces it (copy-on-write), so observations need no copy of it.
         self.depth = np.zeros((self.n, 0, 0), dtype=np.float32)
         self._depth_stale = np.zeros(self.n, dtype=bool)  # reset since the last render
+        self._depth_renderer = None  # a WarpDepthRenderer on a GPU, else the numba ray march
         if self.camera is not None:
             self.depth = np.full(
                 (self.n, self.camera.height, self.camera.width), self.camera.far, dtype=np.float32
             )
             self._depth_max = sensors.depth_max_maps(self.bank.heights)
+            # the ray march runs where the physics does when that is a GPU; on warp's CPU device
+            # (one thread a kernel) the numba renderer is the faster one
+            if self.physics.device != "cpu":
+                from tron1cli.env.depth_warp import WarpDepthRenderer
+
+                self._depth_renderer = WarpDepthRenderer(
+                    self.bank.heights, self._depth_max, self.camera, self.bank.res, self.physics.device
+                )
             cam = self.model.camera(robot.CAMERA_NAME)
             self._cam_pos_b = cam.pos.copy()
             self._cam_rot_b = quat_to_mat(cam.quat[None])[0]
@@ -344,16 +353,20 @@ class Tron1Env:
         if self.camera is None or len(ids) == 0:
             return
         pos, rot = self.camera_pose(ids)
-        img = sensors.render_depth(
-            self.bank.heights,
-            self.curriculum.tile[ids],
-            pos,
-            rot,
-            self.camera,
-            self.bank.res,
-            max_maps=self._depth_max,
-            ray_scale=self.depth_ray_scale(ids),
-        )
+        tiles, scale = self.curriculum.tile[ids], self.depth_ray_scale(ids)
+        if self._depth_renderer is not None:
+            img = self._depth_renderer.render(tiles, pos, rot, scale)
+        else:
+            img = sensors.render_depth(
+                self.bank.heights,
+                tiles,
+                pos,
+                rot,
+                self.camera,
+                self.bank.res,
+                max_maps=self._depth_max,
+                ray_scale=scale,
+            )
         if self.cfg.noise.enabled:
             img = sensors.add_depth_noise(img, self.camera, self.rng, out=img)
         self.set_depth(ids, img)

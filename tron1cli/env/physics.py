@@ -35,6 +35,9 @@ class BatchedPhysics:
         nthread: worker threads of the rollout pool.
     """
 
+    #: where the physics runs (a warp device for :class:`~tron1cli.env.physics_warp.WarpPhysics`)
+    device: str = "cpu"
+
     def __init__(self, models: Sequence[mujoco.MjModel], nsub: int, nthread: int = 2) -> None:
         if not models:
             raise ValueError("BatchedPhysics needs at least one model")

@@ -118,7 +118,6 @@ class WarpPhysics(BatchedPhysics):
             rows[:] = np.stack([getattr(m, name) for m in self.models]).reshape(rows.shape)
             getattr(self._m, name).assign(rows)
         self._ground = dev_model.geom(GROUND_NAME).id
-        self._dt = float(m0.opt.timestep)
         # one step's inputs and outputs on the device, substep first: uploaded and read back once
         # a step, so the substeps are device work only (one graph launch where captured)
         with wp.ScopedDevice(self.device):
@@ -198,7 +197,7 @@ class WarpPhysics(BatchedPhysics):
         # drifts by 4e-5 s after 4 s of episode, which the env core's check for MuJoCo's own
         # resets (time restarting) took for a diverged world; mujoco-warp never restarts a world
         # (a diverged one shows as NaN in the other columns, which stay the device's)
-        self.traj[:, :, 0] = t0[:, None] + self._dt * np.arange(1, self.nsub + 1)
+        self.traj[:, :, 0] = t0[:, None] + self.dt * np.arange(1, self.nsub + 1)
         self.state[:] = self.traj[:, -1]
 
     def _substeps(self) -> None:
