@@ -30,6 +30,17 @@ from tron1cli.evaluation.protocol import (
 )
 from tron1cli.evaluation.pushes import PUSH_TYPES, PushProtocol, push_wrenches
 from tron1cli.policy.runtime import load_policy
+from tron1cli.train.layout import policy_label
+
+
+def test_a_policy_without_a_label_is_named_after_its_run_or_its_file(tmp_path, monkeypatch):
+    assert policy_label(Path("runs/x/checkpoints/latest.pt")) == "x"
+    assert policy_label(Path("policies/tron1_flat.onnx")) == "tron1_flat"
+    monkeypatch.chdir(tmp_path)
+    assert policy_label(Path("latest.pt")) == "latest"  # not in a run: the stem, never ""
+    (tmp_path / "run7" / "checkpoints").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "run7")
+    assert policy_label(Path("checkpoints/latest.pt")) == "run7"
 
 
 def test_parse_groups(tmp_path):

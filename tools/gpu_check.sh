@@ -15,6 +15,8 @@
 #   bench_train_flat.json        a whole training iteration, learner on the GPU
 #   train.log, eval/             `tron1 train --terrain flat` for MINUTES (default 3) on warp and
 #                                the GPU, then `tron1 eval` of its checkpoint on flat ground
+#   ptrain.log, peval/           the same on stairs with depth students (part perceptive, not in
+#                                the default PARTS: MINUTES + 4 minutes more)
 # Each step has its own time limit, and a failing step does not stop the later ones; steps.txt
 # says how each ended. ENVS (default "1024 4096"), BENCH_STEPS (100) and DEVICE (cuda, the
 # learner's) shrink it for a dry run on a machine without a GPU.
@@ -69,6 +71,13 @@ for part in $parts; do
     step "bench stairs $big" 240 "${tron1[@]}" bench --backend warp --envs "$big" --steps "$steps" \
       --terrain stairs --depth --json >"$out/bench_stairs_$big.json"
     ;;
-  *) echo "gpu_check: unknown part $part (compile, tests, bench, train, stairs)" >&2 ;;
+  perceptive)  # the stairs preset (teachers and depth students) for MINUTES, then its eval
+    step "train stairs" $((minutes * 60 + 120)) "${tron1[@]}" train --terrain stairs --backend warp \
+      --envs "$big" --device "$device" --minutes "$minutes" --run-dir "$out/prun" >"$out/ptrain.log" 2>&1
+    step "eval stairs" 120 "${tron1[@]}" eval "$out/prun/checkpoints/latest.pt" --terrain stairs \
+      --envs 256 --backend warp --out "$out/peval" >"$out/peval.log" 2>&1
+    rm -rf "$out/prun/checkpoints"
+    ;;
+  *) echo "gpu_check: unknown part $part (compile, tests, bench, train, stairs, perceptive)" >&2 ;;
   esac
 done

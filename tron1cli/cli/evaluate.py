@@ -32,6 +32,7 @@ from tron1cli.cli.common import (
     terrain_help,
 )
 from tron1cli.evaluation.metric_names import METRICS, PERCENT_METRICS
+from tron1cli.train.layout import policy_label
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -48,7 +49,7 @@ def parse_groups(tokens: list[str]) -> dict[str, list[Path]]:
         paths = [Path(p) for p in rest.split(",") if p]
         if not paths:
             raise ValueError(f"no policy path in '{tok}'")
-        label = label or (paths[0].stem if paths[0].stem != "latest" else paths[0].parent.parent.name)
+        label = label or policy_label(paths[0])
         if label in groups:
             raise ValueError(f"label '{label}' given twice; name groups as LABEL=PATH")
         groups[label] = paths

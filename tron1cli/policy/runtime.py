@@ -87,10 +87,6 @@ class Policy:
         hw = self.contract["obs_layout"]["depth_hw"]
         return None if hw is None else (int(hw[0]), int(hw[1]))
 
-    @property
-    def label(self) -> str:
-        return self.path.stem if self.path.stem != "latest" else self.path.parent.parent.name
-
     def initial_hidden(self, batch: int) -> np.ndarray:
         return np.zeros((batch, self.gru_hidden), dtype=np.float32)
 

@@ -36,3 +36,13 @@ def check_run_dir(run_dir: Path | str, resume: bool) -> None:
     check_output_dir(run_dir, "--run-dir")
     if resume and not latest_checkpoint(run_dir).exists():
         raise Tron1Error(f"nothing to resume in {run_dir}: no {CHECKPOINTS}/{LATEST}")
+
+
+def policy_label(path: Path) -> str:
+    """A policy's name in tables when none is given: its run's name for a run's latest checkpoint
+    (``runs/x/checkpoints/latest.pt`` -> ``x``, also given as ``checkpoints/latest.pt`` from
+    inside the run), else the file's stem."""
+    p = path.resolve()
+    if p.name == LATEST and p.parent.name == CHECKPOINTS and p.parent.parent.name:
+        return p.parent.parent.name
+    return path.stem
