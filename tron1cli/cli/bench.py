@@ -10,6 +10,7 @@ from rich.table import Table
 from tron1cli.cli.common import (
     SEED_MAX,
     available_cores,
+    backend_note,
     backend_option,
     check_backend,
     err,
@@ -83,7 +84,8 @@ def bench(
         _bench_train(envs, threads, seed, terrain, rounds, device, precision, backend, json_out)
         return
     envs = envs or _RAW_ENVS
-    with err.status(f"stepping {envs} envs for {steps} policy steps, {rounds} rounds..."):
+    what = f"stepping {envs} envs for {steps} policy steps, {rounds} rounds"
+    with err.status(f"{what}{backend_note(backend)}..."):
         res = run_bench(
             envs,
             steps,
@@ -149,7 +151,8 @@ def _bench_train(
         cfg = run_config(preset, seed=seed, nthread=threads, precision=precision)
     except ValueError as e:
         fail(str(e), 2)
-    with err.status(f"training {rounds} + 1 iterations of {envs} envs on {terrain}..."):
+    what = f"training {rounds} + 1 iterations of {envs} envs on {terrain}"
+    with err.status(f"{what}{backend_note(backend)}..."):
         res = run_train_bench(cfg, rounds=rounds, device=device, backend=backend)
     if as_json:
         print_json(res)

@@ -16,6 +16,7 @@ from rich.table import Table
 from tron1cli.cli.common import (
     SEED_MAX,
     available_cores,
+    backend_note,
     backend_option,
     check_backend,
     check_outputs,
@@ -363,7 +364,8 @@ def train(
         )
     if init is not None and Path(init).resolve().parent == checkpoint_dir(run_dir).resolve():
         fail(f"--init {init} lies in this run's own checkpoints; give another run's checkpoint", 2)
-    trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init, backend=backend)
+    with err.status(f"building {cfg.env.num_envs} envs{backend_note(backend)}..."):
+        trainer = Trainer(run_dir, cfg, device=device, threads=threads, init=init, backend=backend)
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=False)
 
 
@@ -390,16 +392,17 @@ def _resume(
     from tron1cli.train.runner import Trainer
 
     tune_glibc_malloc()
-    trainer = Trainer(
-        run_dir,
-        resume=True,
-        iterations=iterations,
-        device=device,
-        threads=threads or available_cores(),
-        save_every=save_every if _given(ctx, "save_every") else None,
-        precision=precision,
-        backend=backend,
-    )
+    with err.status(f"resuming {run_dir}{backend_note(backend)}..."):
+        trainer = Trainer(
+            run_dir,
+            resume=True,
+            iterations=iterations,
+            device=device,
+            threads=threads or available_cores(),
+            save_every=save_every if _given(ctx, "save_every") else None,
+            precision=precision,
+            backend=backend,
+        )
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
 
 
