@@ -115,6 +115,24 @@ def test_bench_json():
     assert res["raw_steps_per_s"] > 0 and 0 < res["ratio"] < 2
     lo, hi = res["ratio_spread"]
     assert lo <= res["ratio"] <= hi  # the ratio of medians lies within the per-round ratios
+    assert res["unstable_resets"] == 0 and "warning" not in r.stderr  # a healthy engine
+
+
+def test_bench_says_when_it_timed_resets_of_diverged_worlds(monkeypatch):
+    """A bench whose env reset diverged worlds says so in one warning line (the warp clock bug
+    of session 18 would have shown here: every world past 2 s was reset as unstable)."""
+    from typer.testing import CliRunner
+
+    import tron1cli.benchmark
+    from tron1cli.cli.main import app
+
+    real = tron1cli.benchmark.run_bench
+    monkeypatch.setattr(
+        tron1cli.benchmark, "run_bench", lambda *a, **k: {**real(*a, **k), "unstable_resets": 1234}
+    )
+    r = CliRunner().invoke(app, ["bench", "--envs", "8", "--steps", "2", "--rounds", "1", "--json"])
+    assert r.exit_code == 0, r.output
+    assert "warning: 1,234 worlds diverged and were reset during the bench" in r.output
 
 
 def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
@@ -132,6 +150,7 @@ def test_bench_train_json_splits_an_iteration_into_ratios_of_raw():
         lo, hi = res[f"{part}_ratio_spread"]
         assert lo <= res[f"{part}_ratio"] <= hi
     assert res["train_steps_per_s"] < min(res["collect_steps_per_s"], res["learn_steps_per_s"])
+    assert res["unstable_resets"] == 0
 
 
 def test_bench_train_times_the_env_count_train_would_use(monkeypatch):

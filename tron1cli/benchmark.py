@@ -113,6 +113,9 @@ def run_bench(
             "raw_steps_per_s": float(np.median(rates[0])),
             "env_steps_per_s": float(np.median(rates[1])),
             "depth": depth,
+            # worlds the env core reset as diverged (NaN, runaway velocity, restarted clock):
+            # a healthy engine has none; they would make the env rate a rate of resets
+            "unstable_resets": env.unstable_count + (denv.unstable_count if denv is not None else 0),
         }
         res["ratio"] = res["env_steps_per_s"] / res["raw_steps_per_s"]
         res["ratio_spread"] = _spread(rates[1] / rates[0])
@@ -209,6 +212,7 @@ def run_train_bench(
                     (phys.state, phys.traj, phys.sensordata, phys.control), saved, strict=True
                 ):
                     dst[:] = src
+            unstable = trainer.env.unstable_count
         finally:
             trainer.close()
     steps = T * n
@@ -228,6 +232,7 @@ def run_train_bench(
         "raw_steps_per_s": steps / float(np.median(raw)),
         "collect_s": float(np.median(collect)),
         "learn_s": float(np.median(learn)),
+        "unstable_resets": unstable,
     }
     for k in ("train", "collect", "learn"):
         res[f"{k}_steps_per_s"] = steps / float(np.median(seconds[k]))

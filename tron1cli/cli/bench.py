@@ -22,6 +22,7 @@ from tron1cli.cli.common import (
     resolve_precision,
     terrain_help,
     threads_option,
+    warn,
 )
 
 _RAW_ENVS = 1024
@@ -97,6 +98,7 @@ def bench(
             rounds=rounds,
             backend=backend,
         )
+    _warn_unstable(res)
     if json_out:
         print_json(res)
         return
@@ -122,6 +124,15 @@ def bench(
             f"{res['depth_images_per_s']:,.0f} /s ({res['depth_ms_per_image']:.3f} ms each)",
         )
     out.print(t)
+
+
+def _warn_unstable(res: dict) -> None:
+    """One warning line when the bench reset diverged worlds (the rates then time resets too)."""
+    if res["unstable_resets"]:
+        warn(
+            f"{res['unstable_resets']:,} worlds diverged and were reset during the bench: "
+            "the env rates include those resets"
+        )
 
 
 #: what the raw rate times, per backend
@@ -154,6 +165,7 @@ def _bench_train(
     what = f"training {rounds} + 1 iterations of {envs} envs on {terrain}"
     with err.status(f"{what}{backend_note(backend)}..."):
         res = run_train_bench(cfg, rounds=rounds, device=device, backend=backend)
+    _warn_unstable(res)
     if as_json:
         print_json(res)
     else:
