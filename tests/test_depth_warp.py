@@ -95,3 +95,21 @@ def test_the_env_core_renders_on_warp_where_the_physics_is_a_gpu():
     env._render_depth(students)
     assert np.abs(env.depth[students] - numba_frames).max() < DEPTH_TOL
     assert (numba_frames < env.camera.far).any()
+
+
+def test_the_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path):
+    """The kernel's CUDA build (sm_90, the H100/H200) through warp's NVRTC, which needs no GPU:
+    what runs on a GPU machine is checked to compile before a session spends GPU time on it."""
+    pytest.importorskip("mujoco_warp")
+    import warp as wp
+
+    from tron1cli.env import depth_warp
+    from tron1cli.env.physics_warp import warp_device
+
+    warp_device()  # warp quiet
+    if 90 not in wp.get_cuda_supported_archs():
+        pytest.skip("this warp build cannot compile for sm_90")
+    kernel = depth_warp._build()
+    paths = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path, use_ptx=True)
+    assert [p.suffix for p in paths] == [".ptx"] and paths[0].stat().st_size > 10_000
+    assert ".entry" in paths[0].read_text() and "render" in paths[0].read_text()
