@@ -181,6 +181,7 @@ class WarpPhysics(BatchedPhysics):
         and two read-backs (states and sensor data of every substep) a call."""
         wp = self._wp
         c = self.control.transpose(1, 0, 2)  # (nsub, N, ncontrol)
+        t0 = self.state[:, 0].copy()
         with wp.ScopedDevice(self.device):
             self._state_dev.assign(self.state.astype(np.float32))
             self._ctrl_dev.assign(np.ascontiguousarray(c[..., : self.nu], dtype=np.float32))
@@ -190,7 +191,6 @@ class WarpPhysics(BatchedPhysics):
                 wp.capture_launch(self._graph)
             else:
                 self._substeps()
-            t0 = self.state[:, 0].copy()
             self.traj[:] = self._traj_dev.numpy().transpose(1, 0, 2)
             self.sensordata[:] = self._sens_dev.numpy().transpose(1, 0, 2)
         # time in float64 as on the CPU engine: the device's float32 clock, re-uploaded every step,
