@@ -14,6 +14,8 @@ camera poses and reads the images back.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from tron1cli.env.physics_warp import warp_device
@@ -21,9 +23,9 @@ from tron1cli.env.sensors import _BLOCK, _BLOCK2, DepthCamera, DepthMaxMaps
 from tron1cli.env.terrain import as_bank, as_tile_idx
 
 _FAR = 1.0e30  # "never" for a ray parameter (warp has no float infinity literal)
-_kernel = None
 
 
+@functools.cache
 def _build():
     """Define the warp functions and kernel on first use (warp is an optional dependency)."""
     import warp as wp
@@ -245,13 +247,10 @@ class WarpDepthRenderer:
     def __init__(
         self, bank_heights, maps: DepthMaxMaps, cam: DepthCamera, res: float, device: str | None = None
     ):
-        global _kernel
         self.device = warp_device(device)
         import warp as wp
 
-        if _kernel is None:
-            _kernel = _build()
-        self._wp = wp
+        self._wp, self._kernel = wp, _build()
         h = as_bank(bank_heights)
         if maps.fine.shape[0] != h.shape[0] or maps.top.shape != (h.shape[0],):
             raise ValueError("max_maps were not built for this bank (use depth_max_maps(bank_heights))")
@@ -286,7 +285,7 @@ class WarpDepthRenderer:
         with wp.ScopedDevice(self.device):
             out = wp.empty(shape, dtype=wp.float32)
             wp.launch(
-                _kernel,
+                self._kernel,
                 dim=shape,
                 inputs=[
                     self._flat, self.nr, self.nc, wp.array(idx.astype(np.int32), dtype=wp.int32),
