@@ -12,10 +12,13 @@ from tron1cli.env.terrain import TERRAINS, TerrainBank, TerrainConfig
 
 pytestmark = pytest.mark.slow
 
-#: Largest |warp - numba| depth (m). The kernel marches in float32, numba in float64: measured
-#: 2.6e-5 m over 64 images of each terrain. 1 mm is 40x that and 10x below the camera's own noise
-#: (1 cm std), so a ray that grazes an edge differently would still fail it.
+#: |warp - numba| depth (m) that all but grazing pixels keep. The kernel marches in float32,
+#: numba in float64: measured at most 7.9e-5 m over 6 x 64 images of each terrain type, but for
+#: one pixel in 100,000 where a ray grazes a bump tangentially: there moving the camera 0.1 um
+#: moves numba's own answer between two surfaces 9 cm apart. 1 mm is 10x below the camera's noise.
 DEPTH_TOL = 1e-3
+#: share of pixels allowed beyond DEPTH_TOL (grazing rays; 1 in 307,200 seen)
+GRAZING = 1e-4
 
 
 def _poses(bank: TerrainBank, n: int, rng: np.random.Generator):
@@ -41,7 +44,7 @@ def test_the_warp_kernel_renders_what_the_numba_march_renders(terrain):
     ref = sensors.render_depth(bank.heights, tiles, pos, rot, cam, bank.res, max_maps=maps, ray_scale=scale)
     got = WarpDepthRenderer(bank.heights, maps, cam, bank.res, device="cpu").render(tiles, pos, rot, scale)
     assert got.shape == ref.shape == (32, cam.height, cam.width) and got.dtype == np.float32
-    assert np.abs(got - ref).max() < DEPTH_TOL
+    assert (np.abs(got - ref) > DEPTH_TOL).mean() < GRAZING
     # the poses see both ground and sky (no return reads far), so both paths are exercised
     assert 0.0 < (ref >= cam.far).mean() < 0.5
     # a wider field of view is a different image
@@ -49,6 +52,24 @@ def test_the_warp_kernel_renders_what_the_numba_march_renders(terrain):
         tiles, pos, rot, scale * 1.2
     )
     assert np.abs(wide - got).max() > 0.1
+
+
+def test_a_ray_through_a_block_corner_still_finds_the_ground():
+    """A ray that leaves a skipped block exactly through its corner: float32 rounding put it back
+    into the block it had left, and two jumps of no length alternated until the march gave up
+    and read far (3 m) on flat ground 0.93 m away. Block jumps now gain at least 1e-5 m."""
+    pytest.importorskip("mujoco_warp")
+    from tron1cli.env.depth_warp import WarpDepthRenderer
+
+    bank = TerrainBank.from_name("stairs_up", TerrainConfig(num_levels=4, variants_per_level=1), seed=0)
+    cam, maps = sensors.DepthCamera(), sensors.depth_max_maps(bank.heights)
+    tiles, pos, rot, scale = (a[52:53] for a in _poses(bank, 64, np.random.default_rng(1)))
+    got = WarpDepthRenderer(bank.heights, maps, cam, bank.res, device="cpu").render(tiles, pos, rot, scale)
+    ref = sensors.render_depth(bank.heights, tiles, pos, rot, cam, bank.res, max_maps=maps, ray_scale=scale)
+    assert got[0, 23, 2] == pytest.approx(0.9294, abs=1e-3) and ref[0, 23, 2] == pytest.approx(
+        0.9294, abs=1e-3
+    )
+    assert np.abs(got - ref).max() < DEPTH_TOL
 
 
 def test_the_warp_renderer_refuses_what_render_depth_refuses():

@@ -19,7 +19,7 @@ import functools
 import numpy as np
 
 from tron1cli.env.physics_warp import warp_device
-from tron1cli.env.sensors import _BLOCK, _BLOCK2, DepthCamera, DepthMaxMaps
+from tron1cli.env.sensors import _BLOCK, _BLOCK2, _MIN_JUMP_M, DepthCamera, DepthMaxMaps
 from tron1cli.env.terrain import as_bank, as_tile_idx
 
 _FAR = 1.0e30  # "never" for a ray parameter (warp has no float infinity literal)
@@ -31,6 +31,7 @@ def _build():
     import warp as wp
 
     BLOCK, BLOCK2, FAR = wp.constant(_BLOCK), wp.constant(_BLOCK2), wp.constant(_FAR)
+    MIN_JUMP = wp.constant(_MIN_JUMP_M)
 
     @wp.func
     def bilerp(flat: wp.array(dtype=wp.float32), base: int, nr: int, nc: int, fx: float, fy: float):
@@ -117,7 +118,7 @@ def _build():
                     last_b = b
                     tb = block_exit(i, j, BLOCK, fx0, fy0, gx, gy, igx, igy, nr, nc, far)
                     hi = bmax[u, i // BLOCK, j // BLOCK]
-                    if tb > t and wp.min(za, oz + tb * dz) > hi:
+                    if tb > t + MIN_JUMP and wp.min(za, oz + tb * dz) > hi:
                         b2 = (i // BLOCK2) * nbx2 + j // BLOCK2
                         if b2 != last_b2:
                             last_b2 = b2

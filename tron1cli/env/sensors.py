@@ -46,6 +46,10 @@ from tron1cli.env.terrain import as_bank, as_tile_idx, bilerp, ground_height
 # Sides (in cells) of the square blocks of the two max-height maps the depth ray march skips over.
 _BLOCK = 4
 _BLOCK2 = 16
+#: the least z-depth (m) a block jump must gain; a block the ray would cross in less is walked
+#: cell by cell: through a block corner, rounding can put the ray back into the block it left
+#: and two jumps of no length would alternate until the march gave up (a float32 march did)
+_MIN_JUMP_M = 1e-5
 
 
 # ---------------------------------------------------------------------------------------------
@@ -393,7 +397,7 @@ def _march(flat, base, nr, nc, bmax, bmax2, bmin, u, t, fx0, fy0, oz, gx, gy, dz
                 last_b = b
                 tb = _block_exit(i, j, _BLOCK, fx0, fy0, gx, gy, igx, igy, nr, nc, far)
                 hi = bmax[u, i // _BLOCK, j // _BLOCK]
-                if tb > t and min(za, oz + tb * dz) > hi:
+                if tb > t + _MIN_JUMP_M and min(za, oz + tb * dz) > hi:
                     # above this small block; the large one holding it can only be passed if so
                     b2 = (i // _BLOCK2) * nbx2 + j // _BLOCK2
                     if b2 != last_b2:
