@@ -19,7 +19,16 @@ import functools
 import numpy as np
 
 from tron1cli.env.physics_warp import warp_device
-from tron1cli.env.sensors import _BLOCK, _BLOCK2, _MIN_JUMP_M, DepthCamera, DepthMaxMaps
+from tron1cli.env.sensors import (
+    _BLOCK,
+    _BLOCK2,
+    _MIN_JUMP_M,
+    DepthCamera,
+    DepthMaxMaps,
+    camera_poses,
+    check_max_maps,
+    ray_scales,
+)
 from tron1cli.env.terrain import as_bank, as_tile_idx
 
 _FAR = 1.0e30  # "never" for a ray parameter (warp has no float infinity literal)
@@ -253,8 +262,7 @@ class WarpDepthRenderer:
 
         self._wp, self._kernel = wp, _build()
         h = as_bank(bank_heights)
-        if maps.fine.shape[0] != h.shape[0] or maps.top.shape != (h.shape[0],):
-            raise ValueError("max_maps were not built for this bank (use depth_max_maps(bank_heights))")
+        check_max_maps(maps, h.shape[0])
         self.num_tiles, self.nr, self.nc = h.shape
         self.cam, self.res = cam, float(res)
         rays = np.ascontiguousarray(cam.pixel_rays()[..., :2], dtype=np.float32)
@@ -271,15 +279,8 @@ class WarpDepthRenderer:
         wp = self._wp
         idx = as_tile_idx(tile_idx, self.num_tiles)
         n = idx.shape[0]
-        pos = np.asarray(cam_pos, dtype=np.float32)
-        rot = np.asarray(cam_rot, dtype=np.float32)
-        if pos.shape != (n, 3) or rot.shape != (n, 3, 3):
-            raise ValueError(
-                f"cam_pos must be ({n}, 3) and cam_rot ({n}, 3, 3), got {pos.shape}, {rot.shape}"
-            )
-        scale = np.ones(n, dtype=np.float32) if ray_scale is None else np.asarray(ray_scale, dtype=np.float32)
-        if scale.shape != (n,) or not np.all(scale > 0):
-            raise ValueError(f"ray_scale must be ({n},) positive factors, got shape {scale.shape}")
+        pos, rot = (a.astype(np.float32) for a in camera_poses(n, cam_pos, cam_rot))
+        scale = ray_scales(n, ray_scale).astype(np.float32)
         shape = (n, self.cam.height, self.cam.width)
         if n == 0:
             return np.empty(shape, dtype=np.float32)

@@ -501,6 +501,33 @@ def _render_kernel(
             out[n, v, c] = t
 
 
+def camera_poses(n: int, cam_pos, cam_rot) -> tuple[np.ndarray, np.ndarray]:
+    """``cam_pos`` (n, 3) and ``cam_rot`` (n, 3, 3) as C-contiguous float64; ValueError otherwise."""
+    pos = np.ascontiguousarray(cam_pos, dtype=np.float64)
+    rot = np.ascontiguousarray(cam_rot, dtype=np.float64)
+    if pos.shape != (n, 3) or rot.shape != (n, 3, 3):
+        raise ValueError(f"cam_pos must be ({n}, 3) and cam_rot ({n}, 3, 3), got {pos.shape}, {rot.shape}")
+    return pos, rot
+
+
+def ray_scales(n: int, ray_scale) -> np.ndarray:
+    """(n,) float64 ray factors (see :func:`render_depth`): ones for None; ValueError for another
+    count or a factor <= 0."""
+    if ray_scale is None:
+        return np.ones(n)
+    scale = np.ascontiguousarray(ray_scale, dtype=np.float64).reshape(-1)
+    if scale.shape != (n,) or not np.all(scale > 0):
+        raise ValueError(f"ray_scale must be ({n},) positive factors, got shape {scale.shape}")
+    return scale
+
+
+def check_max_maps(maps: DepthMaxMaps, num_tiles: int) -> DepthMaxMaps:
+    """``maps`` if built for a bank of ``num_tiles`` tiles; ValueError otherwise."""
+    if maps.fine.shape[0] != num_tiles or maps.top.shape != (num_tiles,):
+        raise ValueError("max_maps were not built for this bank (use depth_max_maps(bank_heights))")
+    return maps
+
+
 def render_depth(
     bank_heights,
     tile_idx,
@@ -533,10 +560,7 @@ def render_depth(
     h = as_bank(bank_heights)
     idx = as_tile_idx(tile_idx, h.shape[0])
     n = idx.shape[0]
-    pos = np.ascontiguousarray(cam_pos, dtype=np.float64)
-    rot = np.ascontiguousarray(cam_rot, dtype=np.float64)
-    if pos.shape != (n, 3) or rot.shape != (n, 3, 3):
-        raise ValueError(f"cam_pos must be ({n}, 3) and cam_rot ({n}, 3, 3), got {pos.shape}, {rot.shape}")
+    pos, rot = camera_poses(n, cam_pos, cam_rot)
     shape = (n, cam.height, cam.width)
     if out is None:
         out = np.empty(shape, dtype=np.float32)
@@ -544,20 +568,13 @@ def render_depth(
         raise ValueError(f"out must be C-contiguous float32 {shape}")
     if n == 0:
         return out
-    if ray_scale is None:
-        scale = np.ones(n)
-    else:
-        scale = np.ascontiguousarray(ray_scale, dtype=np.float64).reshape(-1)
-        if scale.shape != (n,) or not np.all(scale > 0):
-            raise ValueError(f"ray_scale must be ({n},) positive factors, got shape {scale.shape}")
+    scale = ray_scales(n, ray_scale)
     if max_maps is None:
         tiles, uidx = np.unique(idx, return_inverse=True)
         maps = _max_maps(h, tiles)
         uidx = np.ascontiguousarray(uidx.reshape(-1), dtype=np.int64)
     else:
-        maps = max_maps
-        if maps.fine.shape[0] != h.shape[0] or maps.top.shape != (h.shape[0],):
-            raise ValueError("max_maps were not built for this bank (use depth_max_maps(bank_heights))")
+        maps = check_max_maps(max_maps, h.shape[0])
         uidx = idx
     _render_kernel(
         h.reshape(-1),
