@@ -120,7 +120,7 @@ def test_bench_json():
 
 def test_bench_says_when_it_timed_resets_of_diverged_worlds(monkeypatch):
     """A bench whose env reset diverged worlds says so in one warning line (the warp clock bug
-    of session 18 would have shown here: every world past 2 s was reset as unstable)."""
+    found on the H200 on 2026-12-04 would have shown here: every world past 2 s was reset as unstable)."""
     from typer.testing import CliRunner
 
     import tron1cli.benchmark

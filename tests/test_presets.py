@@ -7,10 +7,10 @@ from tron1cli.env.randomization import ALL_TERMS, PushConfig
 
 
 def test_registry_holds_the_named_factories():
-    assert list(PRESETS) == ["flat", "perceptive", "paper"]
+    assert list(PRESETS) == ["flat", "perceptive", "teacher", "paper"]
     for name, factory in PRESETS.items():
         assert factory().name == name and factory() == factory()  # fresh, equal copies
-    with pytest.raises(ValueError, match="choose from flat, perceptive, paper"):
+    with pytest.raises(ValueError, match="choose from flat, perceptive, teacher, paper"):
         make_preset("fast")
 
 
@@ -20,6 +20,17 @@ def test_paper_preset_is_the_papers_method_and_sizes():
     assert not p.gait_prior and dict(p.critic_weights) == {} and p.ablation == "none"
     assert p.perception and p.terrain == "mixed"
     assert p.randomization.terms == ALL_TERMS and p.pushes == PushConfig.moderate()
+
+
+def test_teacher_stage_is_the_perceptive_preset_with_every_env_a_teacher():
+    t, p = make_preset("teacher"), make_preset("perceptive")
+    assert t.teacher_ratio == 1.0 and p.teacher_ratio == 0.5
+    assert (t.perception, t.randomization, t.pushes, t.terrain) == (
+        p.perception,
+        p.randomization,
+        p.pushes,
+        p.terrain,
+    )
 
 
 def test_flat_preset_is_the_quick_start():

@@ -61,7 +61,7 @@ def test_same_seed_same_first_iterations(tmp_path):
         (["--critic-weights", "speed=2"], 2, "unknown reward group 'speed'"),
         (["--ablation", "single-critic", "--critic-weights", "stable=0.5"], 2, "groups: all"),
         (["--terrain", "stairs", "--randomize-skip", "lava"], 2, "unknown randomisation terms ['lava']"),
-        (["--preset", "fast"], 2, "unknown preset 'fast'; choose from flat, perceptive, paper"),
+        (["--preset", "fast"], 2, "unknown preset 'fast'; choose from flat, perceptive, teacher, paper"),
         (["--preset", "paper", "--resume"], 2, "--preset starts a new run"),
         (["--randomize-skip", "restitution"], 2, "needs Table III randomisation on"),
         (["--reward-weights", "lava=1"], 2, "unknown reward term 'lava'"),
@@ -219,7 +219,7 @@ def test_paper_preset_with_overrides_is_recorded_and_printed(tmp_path):
 
 
 def test_resumed_run_keeps_its_terrain_levels(tmp_path):
-    """A campaign resumed in a later session goes on from the levels it reached, not from 0."""
+    """A campaign resumed in a later run goes on from the levels it reached, not from 0."""
     from dataclasses import replace
 
     import numpy as np

@@ -12,7 +12,7 @@
 # then, in the call that carries the last one, unpack and run:
 #   mkdir -p /tmp/site && cat /tmp/w/part.* | xz -dc -T0 | tar -C /tmp/site -xf - &&
 #   PYTHONPATH=/tmp/site bash tools/gpu_check.sh /tmp/gc
-# (session 18: 2 parts with policies/runs out of the tree, 3 with it).
+# (2026-12-04: 2 parts with policies/runs out of the tree, 3 with it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tree_mb=$(git ls-files -z | xargs -0 du -cb | tail -1 | awk '{print int($1 / 1e6) + 1}')

@@ -58,6 +58,14 @@ def bench(
         help="Time whole training iterations (tron1 train's defaults for --terrain) against the raw "
         "rate of the same physics: collection and learning as ratios of it.",
     ),
+    presets: str = typer.Option(
+        "",
+        "--preset",
+        metavar="NAME[,NAME...]",
+        help="With --train: the presets to time, one after another in this run, e.g. perceptive,teacher "
+        "(Vision-CTS against the teacher stage) [default: tron1 train's for --terrain].",
+        show_default=False,
+    ),
     device: str = typer.Option("cpu", "--device", help="With --train: the learner's device, cpu or cuda."),
     precision: str = typer.Option(
         "fp32", "--precision", help="With --train: the update's arithmetic, fp32 or bf16."
@@ -82,8 +90,10 @@ def bench(
     if train:
         device = resolve_device(device)
         precision = resolve_precision(precision, device)
-        _bench_train(envs, threads, seed, terrain, rounds, device, precision, backend, json_out)
+        _bench_train(envs, threads, seed, terrain, presets, rounds, device, precision, backend, json_out)
         return
+    if presets:
+        fail("--preset times training presets: it needs --train", 2)
     envs = envs or _RAW_ENVS
     what = f"stepping {envs} envs for {steps} policy steps, {rounds} rounds"
     with err.status(f"{what}{backend_note(backend)}..."):
@@ -144,6 +154,7 @@ def _bench_train(
     threads: int,
     seed: int,
     terrain: str,
+    presets: str,
     rounds: int,
     device: str,
     precision: str,
@@ -151,31 +162,50 @@ def _bench_train(
     as_json: bool,
 ):
     from tron1cli.benchmark import run_train_bench
-    from tron1cli.config.presets import for_terrain
+    from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.learn import tune_glibc_malloc
     from tron1cli.train.runner import run_config
 
     tune_glibc_malloc()
+    names = [p.strip() for p in presets.split(",") if p.strip()]
     try:  # the trainer sets torch's threads from the run's nthread
-        preset = for_terrain(terrain)
-        preset = replace(preset, num_envs=envs or preset.num_envs)
-        cfg = run_config(preset, seed=seed, nthread=threads, precision=precision)
+        chosen = [replace(make_preset(n), terrain=terrain) for n in names] or [for_terrain(terrain)]
+        cfgs = [
+            run_config(
+                replace(p, num_envs=envs or p.num_envs), seed=seed, nthread=threads, precision=precision
+            )
+            for p in chosen
+        ]
     except ValueError as e:
         fail(str(e), 2)
-    what = f"training {rounds} + 1 iterations of {envs} envs on {terrain}"
-    with err.status(f"{what}{backend_note(backend)}..."):
-        res = run_train_bench(cfg, rounds=rounds, device=device, backend=backend)
-    _warn_unstable(res)
+    results = []
+    for p, cfg in zip(chosen, cfgs, strict=True):
+        what = f"training {rounds} + 1 iterations of preset {p.name}, {cfg.env.num_envs} envs on {terrain}"
+        with err.status(f"{what}{backend_note(backend)}..."):
+            res = run_train_bench(cfg, rounds=rounds, device=device, backend=backend)
+        res["preset"] = p.name
+        _warn_unstable(res)
+        results.append(res)
     if as_json:
-        print_json(res)
-    else:
+        print_json(results[0] if len(results) == 1 else {"runs": results})
+        return
+    for res in results:
         print_train_table(res)
+    base = results[0]
+    for res in results[1:]:
+        ratio = res["train_steps_per_s"] / base["train_steps_per_s"]
+        out.print(
+            f"{res['preset']} / {base['preset']}: {ratio:.2f}x "
+            f"the env steps per second of a whole iteration ({res['train_steps_per_s']:,.0f} against "
+            f"{base['train_steps_per_s']:,.0f})"
+        )
 
 
 def print_train_table(res: dict) -> None:
     """The table of a :func:`tron1cli.benchmark.run_train_bench` result."""
     t = Table(
-        title=f"tron1 bench --train: {res['num_envs']} envs x {res['steps_per_env']} steps, "
+        title=f"tron1 bench --train{' --preset ' + res['preset'] if 'preset' in res else ''}: "
+        f"{res['num_envs']} envs x {res['steps_per_env']} steps, "
         f"{res['epochs']} epochs, "
         f"{res['terrain']}{' (perception)' if res['perception'] else ''}, {res['nthread']} threads, "
         f"{res['backend']} physics, "

@@ -6,7 +6,7 @@ import csv
 import json
 import math
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import typer
@@ -31,7 +31,9 @@ from tron1cli.cli.common import (
     rerun_file,
     terrain_help,
 )
+from tron1cli.errors import Tron1Error
 from tron1cli.evaluation.metric_names import METRICS, PERCENT_METRICS
+from tron1cli.fileio import atomic_write
 from tron1cli.train.layout import policy_label
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
@@ -160,11 +162,24 @@ def eval_cmd(
     policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
     terrain: str = typer.Option("all", "--terrain", "-t", help=terrain_help(("all",))),
     level: int = typer.Option(-1, "--level", help="Terrain difficulty level (0 easiest; -1 the hardest)."),
-    envs: int = typer.Option(1024, "--envs", "-n", min=1, help="Envs per batch (1024, as the paper)."),
+    envs: int | None = typer.Option(
+        None,
+        "--envs",
+        "-n",
+        min=1,
+        help="Envs per batch [default: 1024, as the paper; 128 with --climb].",
+        show_default=False,
+    ),
     steps: int = typer.Option(
         500, "--steps", min=1, help="Policy steps per batch (500 = 10 s, as the paper)."
     ),
     randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
+    climb: bool = typer.Option(
+        False,
+        "--climb",
+        help="The climb probe: one checkpoint's teacher and student on stairs up at levels 3, 6 and 9 "
+        "(8, 14, 20 cm risers): success, traverse, command progress, risers climbed per env.",
+    ),
     speeds: list[str] | None = typer.Option(
         None,
         "--speeds",
@@ -179,11 +194,13 @@ def eval_cmd(
         help="Metrics to show (default all): " + ", ".join(METRICS),
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the eval envs."),
-    actor: str = typer.Option(
-        "student",
+    actor: str | None = typer.Option(
+        None,
         "--actor",
         help="Who acts: student (the deployed policy: history and depth) or teacher (a checkpoint's "
-        "privileged e_t and true heightmap; measures the teacher-student gap).",
+        "privileged e_t and true heightmap; measures the teacher-student gap) [default: student; "
+        "both with --climb].",
+        show_default=False,
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
@@ -222,6 +239,11 @@ def eval_cmd(
     succeeded and walked at least half their commanded distance.
     """
     groups = _policy_groups(policies)
+    if climb:
+        _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, as_json, out_dir)
+        return
+    envs = envs or 1024
+    actor = actor or "student"
     from tron1cli.evaluation.protocol import (
         SPEED_DIMS,
         EvalSpec,
@@ -381,6 +403,104 @@ def eval_cmd(
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
     render_video(recorder)
+
+
+def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, as_json, out_dir) -> None:
+    """``tron1 eval CKPT --climb``: the climb probe (tron1cli.evaluation.climb) of one checkpoint."""
+    from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, climb_probe
+    from tron1cli.policy.contract import ACTORS
+
+    paths = [p for ps in groups.values() for p in ps]
+    if len(paths) != 1 or paths[0].suffix == ".onnx":
+        fail("--climb scores one checkpoint (.pt): its teacher and its student", 2)
+    if terrain != "all" or level != -1 or speeds:
+        fail(
+            "--climb sets its own terrain and levels (stairs up, 3, 6, 9); "
+            "leave out --terrain, --level and --speeds",
+            2,
+        )
+    if actor is not None and actor not in ACTORS:
+        fail(f"unknown --actor '{actor}'; choose from {', '.join(ACTORS)}", 2)
+    check_outputs(dirs=[("--out", out_dir)], inputs=paths)
+    from tron1cli.policy.runtime import load_policy
+
+    path, envs = paths[0], envs or CLIMB_ENVS
+    policies = {"teacher": load_policy(path, "teacher")} if actor in (None, "teacher") else {}
+    if actor in (None, "student"):
+        try:
+            policies["student"] = load_policy(path, "student")
+        except Tron1Error as e:
+            if actor == "student":
+                raise
+            err.print(f"[yellow]note:[/] no student row: {e}", highlight=False)
+    total = len(policies) * len(CLIMB_LEVELS) * steps
+    with progress_bar(total, "climb") as advance:
+        try:
+            rows = climb_probe(
+                policies,
+                envs,
+                steps,
+                seed,
+                randomize=randomize,
+                on_batch=lambda a, lv: advance(f"{a} level {lv}"),
+            )
+        except KeyboardInterrupt:
+            interrupted("eval --climb", advance.done[0], total, None, out_dir)
+    report = {
+        "protocol": {
+            "name": "climb probe",
+            "terrain": CLIMB_TERRAIN,
+            "levels": list(CLIMB_LEVELS),
+            "envs": envs,
+            "steps": steps,
+            "randomize": randomize,
+            "seed": seed,
+        },
+        "policy": str(path),
+        "rows": [asdict(r) for r in rows],
+    }
+    if out_dir is not None:
+        _write_climb_outputs(out_dir, report)
+    if as_json:
+        print_json(report)
+        return
+    table = Table(
+        title=f"climb probe: {policy_label(path)}",
+        caption=f"stairs up, {envs} envs x {steps} steps, training commands, randomisation "
+        f"{'on' if randomize else 'off'}, full window; success and traverse in %, progress: command "
+        "progress, risers: climbed per env",
+    )
+    for col in ("actor", "level", "riser cm", "success", "traverse", "progress", "risers", "pitch°"):
+        table.add_column(col, justify="left" if col == "actor" else "right")
+    for r in rows:
+        table.add_row(
+            r.actor,
+            str(r.level),
+            f"{100 * r.riser_m:.0f}",
+            f"{100 * r.success:.1f}",
+            f"{100 * r.traverse:.1f}",
+            "-" if r.progress is None else f"{r.progress:.2f}",
+            f"{r.risers:.2f}",
+            "-" if r.pitch_deg is None else f"{r.pitch_deg:+.1f}",
+        )
+    out.print(table)
+    if out_dir is not None:
+        out.print(f"results written to {out_dir}/")
+
+
+def _write_climb_outputs(out_dir: Path, report: dict) -> None:
+    """climb.json and climb.csv in ``out_dir``, each written atomically."""
+    import io
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write(out_dir / "climb.json", lambda f: f.write(json.dumps(report, indent=2).encode()))
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    rows = report["rows"]
+    w.writerow(list(rows[0]))
+    for r in rows:
+        w.writerow(list(r.values()))
+    atomic_write(out_dir / "climb.csv", lambda f: f.write(buf.getvalue().encode()))
 
 
 def _coverage(runs: list) -> dict:

@@ -22,6 +22,14 @@ except RuntimeError as e:
         raise
     sys.stderr.write(f"error: {e} (egl, osmesa or glfw; or leave it unset)\n")
     sys.exit(2)
+except Exception as e:  # a known MUJOCO_GL whose OpenGL backend cannot load (a missing package)
+    from tron1cli.viz.video import gl_import_error
+
+    line = gl_import_error(e)
+    if line is None:
+        raise
+    sys.stderr.write(f"error: {line}\n")
+    sys.exit(1)
 from tron1cli.cli.common import fail, route_mujoco_warnings
 from tron1cli.errors import Tron1Error
 
@@ -53,15 +61,16 @@ def _root(
         typer.echo(ctx.get_help())
 
 
+# in the order a user meets them (`tron1 --help` lists them as registered)
 app.command("train")(train_cmd.train)
 app.command("eval")(evaluate_cmd.eval_cmd)
 app.command("push-test")(evaluate_cmd.push_test)
 app.command("export-onnx")(export_cmd.export_onnx)
 app.command("deploy-sim")(deploy_sim_cmd.deploy_sim)
-app.command("bench")(bench_cmd.bench)
-app.command("report")(report_cmd.report)
 app.command("deploy-robot")(deploy_robot_cmd.deploy_robot)
 app.command("sim-robot")(deploy_robot_cmd.sim_robot)
+app.command("report")(report_cmd.report)
+app.command("bench")(bench_cmd.bench)
 
 
 def main() -> None:

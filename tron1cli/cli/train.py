@@ -33,6 +33,7 @@ from tron1cli.cli.common import (
 )
 from tron1cli.config.presets import FLAT_REWARD_RAMPS, PRESETS
 from tron1cli.env.randomization import ALL_TERMS
+from tron1cli.env.rewards import REWARD_SETTINGS
 
 
 def _ramps_text(ramps) -> str:
@@ -52,12 +53,15 @@ PRESET_OPTIONS = (
     "critic_weights",
     "reward_weights",
     "reward_ramps",
+    "reward_settings",
     "learner",
     "perception",
     "randomize",
     "randomize_skip",
     "pushes",
     "ablation",
+    "terrain_mix",
+    "init_level",
 )
 
 
@@ -181,6 +185,13 @@ def train(
         f"TERM=none for the full weight from the start [default: {_ramps_text(FLAT_REWARD_RAMPS)} "
         "on flat ground, none elsewhere].",
     ),
+    reward_settings: str = typer.Option(
+        "",
+        "--reward-settings",
+        metavar="NAME=VALUE,...",
+        help="Numbers of the reward, e.g. gait_clearance_top_m=0.2 (swing apex rising with the terrain "
+        "level) or z_c=0.54 (m).",
+    ),
     learner: str = typer.Option(
         "",
         "--learner",
@@ -196,6 +207,16 @@ def train(
     rerun_every: int = typer.Option(
         200, "--rerun-every", min=1, help="Iterations between streamed episodes."
     ),
+    terrain_mix: str = typer.Option(
+        "",
+        "--terrain-mix",
+        metavar="TYPE=SHARE,...",
+        help="Share of the envs per terrain type of --terrain, e.g. stairs_up=4,stairs_down=2,rough=1 "
+        "(types left out get none) [default: equal shares].",
+    ),
+    init_level: int = typer.Option(
+        0, "--init-level", min=0, help="Envs start on terrain levels 0..LEVEL (9: any level)."
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -206,7 +227,7 @@ def train(
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_ramps, with_weights
+    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_ramps, with_settings, with_weights
 
     given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
     if resume and preset is not None:
@@ -293,6 +314,13 @@ def train(
             with_ramps(reward, ramps)
         except ValueError as e:
             fail(f"--reward-ramps: {e}", 2)
+    settings_r = dict(base.reward_settings)
+    if "reward_settings" in given:
+        settings_r |= _parse_weights(reward_settings, "--reward-settings", "NAME")
+        try:
+            with_settings(reward, settings_r)
+        except ValueError as e:
+            fail(f"--reward-settings: {e}", 2)
     randomization = base.randomization
     if "randomize" in given:
         randomization = RandomizationConfig.table_iii() if randomize else RandomizationConfig()
@@ -339,10 +367,17 @@ def train(
             critic_weights=MappingProxyType(weights),
             reward_weights=MappingProxyType(term_weights),
             reward_ramps=MappingProxyType(ramps),
+            reward_settings=MappingProxyType(settings_r),
             perception=perception if "perception" in given else base.perception,
             randomization=randomization,
             pushes=push_cfg,
             ablation=ablation,
+            terrain_mix=MappingProxyType(
+                _parse_weights(terrain_mix, "--terrain-mix", "TYPE")
+                if "terrain_mix" in given
+                else base.terrain_mix
+            ),
+            init_level=init_level if "init_level" in given else base.init_level,
         )
         cfg = run_config(
             chosen,
@@ -356,11 +391,16 @@ def train(
         fail(str(e), 2)
     cfg = replace(cfg, learner=replace(cfg.learner, **settings))
     n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
-    if n_teacher >= cfg.env.num_envs:
+    if n_teacher >= cfg.env.num_envs and not cfg.env.perception:
         fail(
             f"--teacher-ratio {cfg.learner.teacher_ratio:g} of {cfg.env.num_envs} envs leaves no "
             "student env: the student is the policy that is exported and deployed; take a smaller ratio",
             2,
+        )
+    if n_teacher >= cfg.env.num_envs:
+        err.print(
+            f"teacher stage: all {cfg.env.num_envs} envs are teachers, no depth is rendered and no "
+            "student is trained; finish it with --preset perceptive --init <its checkpoint>"
         )
     if init is not None and Path(init).resolve().parent == checkpoint_dir(run_dir).resolve():
         fail(f"--init {init} lies in this run's own checkpoints; give another run's checkpoint", 2)
@@ -422,6 +462,7 @@ def _saved_values(cfg) -> dict:
         "critic_weights": {k: float(v) for k, v in lr.critic_weights.items() if float(v) != 1.0},
         "reward_weights": {k: t.weight for k, t in cfg.reward.terms.items()},
         "reward_ramps": {k: t.ramp for k, t in cfg.reward.terms.items() if t.ramp},
+        "reward_settings": {k: getattr(cfg.reward, k) for k in REWARD_SETTINGS},
         "learner": {k: getattr(lr, k) for k in tunable_fields()},
         "perception": e.perception,
         "randomize": bool(terms),
@@ -429,6 +470,8 @@ def _saved_values(cfg) -> dict:
         "pushes": e.pushes.enabled,
         "ablation": cfg.ablation,
         "seed": e.seed,
+        "terrain_mix": dict(e.terrain_mix),
+        "init_level": e.max_init_level,
     }
 
 
@@ -439,7 +482,7 @@ def _as_saved(name: str, value):
             return tuple(int(x) for x in value.split(","))
         if name == "critic_weights":
             return {k: v for k, v in _pairs(value).items() if v != 1.0}
-        if name == "reward_weights":
+        if name in ("reward_weights", "reward_settings", "terrain_mix"):
             return _pairs(value)
         if name == "reward_ramps":
             return _ramps(value)
@@ -490,7 +533,9 @@ def _refuse_changed_options(ctx, run_dir: Path) -> None:
             now = _as_saved(name, ctx.params[name])
         if name == "teacher_ratio" and not isinstance(now, str):
             same = abs(float(now) - float(was)) < 1e-12
-        elif name in ("reward_weights", "reward_ramps", "learner") and isinstance(now, dict):
+        elif name in ("reward_weights", "reward_ramps", "reward_settings", "learner") and isinstance(
+            now, dict
+        ):
             same = all(was.get(k) == v for k, v in now.items())  # only the keys given
             was = {k: was.get(k, None if name == "reward_ramps" else float("nan")) for k in now}
         else:
@@ -610,12 +655,14 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
     task = progress.add_task("train", total=c.iterations, completed=trainer.iteration, figures="")
 
     logged = {"at": -math.inf}  # when the last plain line was written (time.monotonic)
+    who = "student" if trainer.learner.n_student > 0 else "teacher"
 
     def show(m: dict) -> None:
         reward = sum(v for k, v in m.items() if k.startswith("step_reward/"))
-        figs = (  # student figures; compact enough for an 80-column terminal
-            f"{m['steps_per_s']:,.0f}/s rew {_fmt(reward)} ep {_fmt(m.get('student/episode_length_s'))}s"
-            f" surv {_fmt(m.get('student/survival'))} err {_fmt(m.get('student/vel_tracking_error'))}"
+        g = who  # the student's figures, the teacher's in a teacher stage; compact for 80 columns
+        figs = (
+            f"{m['steps_per_s']:,.0f}/s rew {_fmt(reward)} ep {_fmt(m.get(f'{g}/episode_length_s'))}s"
+            f" surv {_fmt(m.get(f'{g}/survival'))} err {_fmt(m.get(f'{g}/vel_tracking_error'))}"
         )
         if "terrain/mean_level" in m:
             figs += f" lvl {_fmt(m['terrain/mean_level'])}"

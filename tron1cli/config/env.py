@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
-from tron1cli.env.terrain import TerrainConfig
+from tron1cli.env.terrain import TerrainConfig, resolve_terrain
 
 
 def _check_range(name: str, lo_hi: tuple[float, float]) -> None:
@@ -130,7 +131,9 @@ class EnvConfig:
 
     num_envs: worlds stepped together; sim_dt: physics step (s); decimation: physics steps per
     policy step (policy dt = sim_dt * decimation); history_len: past student observations o_t
-    stacked into o^H_t; nthread: physics threads; seed: master seed of every random stream.
+    stacked into o^H_t; nthread: physics threads; seed: master seed of every random stream;
+    terrain_mix: terrain type -> share of the envs (types of ``terrain`` left out get none; empty:
+    equal shares); max_init_level: envs start on levels 0..max_init_level.
     """
 
     num_envs: int = 1024
@@ -143,6 +146,7 @@ class EnvConfig:
     terrain_cfg: TerrainConfig = field(default_factory=TerrainConfig)
     curriculum: bool = True
     max_init_level: int = 0
+    terrain_mix: dict[str, float] = field(default_factory=dict)
     perception: bool = False
     depth_hz: float = 30.0
     depth_from: int = 0
@@ -165,6 +169,29 @@ class EnvConfig:
             raise ValueError(f"history_len must be >= 1, got {self.history_len}")
         if self.nthread < 1:
             raise ValueError(f"nthread must be >= 1, got {self.nthread}")
+        if not 0 <= self.max_init_level < self.terrain_cfg.num_levels:
+            raise ValueError(f"max_init_level must lie in 0..{self.terrain_cfg.num_levels - 1}")
+        if self.terrain_mix:
+            self.type_shares()
+
+    def type_shares(self) -> list[float] | None:
+        """Share of the envs per type of ``terrain`` (in bank order) from ``terrain_mix``, or None
+        for equal shares; ValueError for a type outside ``terrain``, a share that is not a finite
+        number >= 0, or shares that are all 0."""
+        if not self.terrain_mix:
+            return None
+        types = resolve_terrain(self.terrain)
+        for name, w in self.terrain_mix.items():
+            if name not in types:
+                raise ValueError(
+                    f"terrain mix: '{name}' is not a type of '{self.terrain}' ({', '.join(types)})"
+                )
+            if not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
+                raise ValueError(f"terrain mix: {name}={w} is not a finite number >= 0")
+        shares = [float(self.terrain_mix.get(t, 0.0)) for t in types]
+        if sum(shares) <= 0:
+            raise ValueError("terrain mix: every share is 0")
+        return shares
 
     @property
     def policy_dt(self) -> float:

@@ -8,7 +8,7 @@ Without ``--preset`` the CLI picks ``flat`` on flat ground and ``perceptive`` el
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
@@ -27,8 +27,8 @@ FLAT_STABLE_WEIGHT = 0.25
 success after 90 iterations from 69 % (0.5) to 95 % (README, "Learning to walk on flat")."""
 
 FLAT_NUM_ENVS = 512
-"""The flat preset's parallel envs. Measured at 24 steps an iteration (session 10): 512 envs instead
-of 1024 gave twice the policy updates per env step at the same cost per env step, and seeds 11-13
+"""The flat preset's parallel envs. Measured at 24 steps an iteration (AVX2 EPYC, 2026-12-03): 512
+envs instead of 1024 gave twice the policy updates per env step at the same cost per env step, and seeds 11-13
 walked (``tron1 eval`` >= 90 %, <= 0.3 m/s) after 3.7 M env steps, where 1024 envs needed 7.4 M
 (README, "Learning to walk on flat")."""
 
@@ -40,7 +40,7 @@ seed 11's ``tron1 eval`` after 2.2 M env steps tracked 0.311 m/s instead of 0.38
 
 FLAT_EPOCHS = 3
 """The flat preset's PPO epochs over each rollout (the learner's default, 5, elsewhere). An iteration
-costs about 0.74 of a 5-epoch one; seeds 11-13 (session 14) kept 98-100 % of the robots up after
+costs about 0.74 of a 5-epoch one; seeds 11-13 (AVX-512 EPYC, 2026-12-03) kept 98-100 % of the robots up after
 200 iterations (the cost of 150 with 5 epochs, after which 80-93 % stood) and tracked 0.26-0.30
 m/s after 450 (the cost of 333; 5 epochs after 350: 0.26-0.32) (README, "Learning to walk on
 flat")."""
@@ -59,8 +59,8 @@ FLAT_REWARD_RAMPS = {"track_lin_l2": (150, 200)}
 first iteration it taught seeds 11 and 12 to walk sooner (``tron1 eval`` 0.255 and 0.266 m/s after
 400 iterations, where without it seed 12 tracked 0.321 after 437) but to survive later (53-57 %
 of robots up after 150 iterations, 86 % after 200; without it 90 % after 143): the main job's 3
-minutes ended with robots that fall. Ramped in from iteration 200 to 250 (session 13) the robots
-learnt to stay up first; from 150 to 200 (session 16, seeds 11-13, 3 epochs) they still stand
+minutes ended with robots that fall. Ramped in from iteration 200 to 250 (AVX-512 EPYC, 2026-12-03) the robots
+learnt to stay up first; from 150 to 200 (2026-12-04, seeds 11-13, 3 epochs) they still stand
 (96-99 % after 200 iterations, against 98-100 %) and walk sooner (0.288-0.356 m/s after 350
 iterations, against 0.316-0.383); from 100 to 150 they walked later than either."""
 
@@ -76,7 +76,10 @@ class TrainPreset:
     critic_weights: reward group -> weight of its normalised advantage (missing: 1);
     reward_weights: reward term -> per-second weight replacing the default one (missing: default);
     reward_ramps: reward term -> (start, end) iterations over which its weight rises from 0;
-    perception: heightmap and depth; randomization: Table III terms; pushes: random pushes.
+    reward_settings: RewardConfig number -> value (``z_c``, ``gait_clearance_top_m``, ...);
+    perception: heightmap and depth; randomization: Table III terms; pushes: random pushes;
+    terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
+    on terrain levels 0..init_level.
     """
 
     name: str
@@ -93,10 +96,13 @@ class TrainPreset:
     )
     reward_weights: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     reward_ramps: Mapping[str, tuple[int, int]] = field(default_factory=lambda: MappingProxyType({}))
+    reward_settings: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     perception: bool = False
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     pushes: PushConfig = field(default_factory=PushConfig)
     ablation: str = "none"
+    terrain_mix: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    init_level: int = 0
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:
@@ -133,6 +139,13 @@ def perceptive(terrain: str = "mixed") -> TrainPreset:
     )
 
 
+def teacher(terrain: str = "mixed") -> TrainPreset:
+    """The teacher stage: :func:`perceptive` with every env a teacher, so no depth is rendered and
+    no student is trained; its weights warm-start the Vision-CTS stage (``--preset perceptive
+    --init``), where the students join. Cheaper samples for learning to climb (docs/training.md)."""
+    return replace(perceptive(terrain), name="teacher", teacher_ratio=1.0)
+
+
 def paper() -> TrainPreset:
     """The paper's method and sizes (Sec. V-A): no gait prior, both critics weighted 1, 2048 envs
     (half teachers) x 24 steps x 10,000 iterations on every terrain type with the curriculum,
@@ -156,7 +169,12 @@ def for_terrain(terrain: str) -> TrainPreset:
 
 
 #: preset name -> factory; ``tron1 train --preset NAME``
-PRESETS: dict[str, Callable[[], TrainPreset]] = {"flat": flat, "perceptive": perceptive, "paper": paper}
+PRESETS: dict[str, Callable[[], TrainPreset]] = {
+    "flat": flat,
+    "perceptive": perceptive,
+    "teacher": teacher,
+    "paper": paper,
+}
 
 
 def make_preset(name: str) -> TrainPreset:

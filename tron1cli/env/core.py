@@ -77,7 +77,7 @@ class Tron1Env:
         self.rng = np.random.default_rng(cfg.seed)
         self.bank = TerrainBank.from_name(cfg.terrain, cfg.terrain_cfg, seed=cfg.seed)
         self.curriculum = TerrainCurriculum(
-            self.bank, self.n, self.rng, cfg.max_init_level, enabled=cfg.curriculum
+            self.bank, self.n, self.rng, cfg.max_init_level, enabled=cfg.curriculum, shares=cfg.type_shares()
         )
         self.model = build_model(cfg.sim_dt, self.bank)
         if self.model.nhfield or cfg.randomization.terms:

@@ -14,12 +14,29 @@ import numpy as np
 from tron1cli.env.terrain import TerrainBank
 
 
+def deal_types(num_envs: int, shares: np.ndarray) -> np.ndarray:
+    """Terrain type index (num_envs,) per env in proportion to ``shares`` (one per type, >= 0, not all
+    0), interleaved so that every run of consecutive envs (the teacher or the student block) gets
+    close to the same proportions: env i takes the type furthest below its share of i + 1 envs
+    (ties to the lower index). Equal shares give the round-robin ``i % len(shares)``."""
+    w = np.asarray(shares, dtype=np.float64)
+    w = w / w.sum()
+    count = np.zeros(len(w))
+    kind = np.empty(num_envs, dtype=np.int64)
+    for i in range(num_envs):
+        k = int(np.argmax((i + 1) * w - count + 1e-9 * (w > 0)))
+        kind[i] = k
+        count[k] += 1
+    return kind
+
+
 class TerrainCurriculum:
     """Per-env terrain type, level and tile index into ``bank``.
 
     up_distance: m walked from the tile centre to move up (default: 60 % of the half tile);
     down_share: fraction of the commanded distance below which an env moves down;
-    max_init_level: envs start on levels 0..max_init_level.
+    max_init_level: envs start on levels 0..max_init_level;
+    shares: share of the envs per bank type (None: equal shares).
     """
 
     def __init__(
@@ -31,6 +48,7 @@ class TerrainCurriculum:
         up_distance: float | None = None,
         down_share: float = 0.5,
         enabled: bool = True,
+        shares: np.ndarray | None = None,
     ) -> None:
         self.bank = bank
         self.rng = rng
@@ -38,7 +56,7 @@ class TerrainCurriculum:
         self.num_levels = bank.cfg.num_levels
         self.up_distance = up_distance if up_distance is not None else 0.6 * bank.half_extent
         self.down_share = down_share
-        self.kind = np.arange(num_envs) % len(bank.types)
+        self.kind = deal_types(num_envs, np.ones(len(bank.types)) if shares is None else shares)
         top = min(max_init_level, self.num_levels - 1)
         self.level = rng.integers(0, top + 1, num_envs)
         self.tile = self._draw_tiles(np.arange(num_envs))

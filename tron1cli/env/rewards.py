@@ -94,7 +94,10 @@ class RewardConfig:
     the CoM plane (m, the CoM height of the default pose); lipm_ground_window_m: side (m) of the
     square of terrain under the CoM whose mean height is the plane's ground (0: the one point
     under the CoM; README, eq. 2-3); l2_alpha: scale of the l2 velocity
-    term; ablation: the preset this config came from (recorded with the run).
+    term; gait_clearance_m: swing apex (m above the terrain under the foot) the clearance term
+    asks for; gait_clearance_top_m: when set, the apex rises linearly with the env's terrain level
+    from ``gait_clearance_m`` (level 0) to this (the top level), so that higher risers get higher
+    steps; ablation: the preset this config came from (recorded with the run).
     """
 
     terms: Mapping[str, TermCfg] = field(default_factory=lambda: MappingProxyType(_paper_terms()))
@@ -105,6 +108,7 @@ class RewardConfig:
     gait_force_scale: float = 20.0
     gait_speed_scale: float = 0.5
     gait_clearance_m: float = 0.1
+    gait_clearance_top_m: float | None = None
     ablation: str = "none"
 
     def __post_init__(self) -> None:
@@ -113,6 +117,10 @@ class RewardConfig:
             raise ValueError(f"unknown reward terms: {sorted(unknown)}")
         if not self.terms:
             raise ValueError("a reward needs at least one term")
+        for name in ("gait_clearance_m", "gait_clearance_top_m", "z_c"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int | float) and 0.0 < v < 10.0):
+                raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
         if not self.lipm_ground_window_m >= 0.0:
             raise ValueError(f"lipm_ground_window_m must be >= 0, got {self.lipm_ground_window_m!r}")
 
@@ -137,6 +145,11 @@ class RewardConfig:
             "gait_force_scale": self.gait_force_scale,
             "gait_speed_scale": self.gait_speed_scale,
             "gait_clearance_m": self.gait_clearance_m,
+            **(
+                {}
+                if self.gait_clearance_top_m is None
+                else {"gait_clearance_top_m": self.gait_clearance_top_m}
+            ),
             "ablation": self.ablation,
             "groups": list(self.groups),
         }
@@ -226,6 +239,28 @@ def with_weights(cfg: RewardConfig, weights: Mapping[str, float]) -> RewardConfi
     return replace(cfg, terms=MappingProxyType(terms))
 
 
+#: the RewardConfig numbers ``tron1 train --reward-settings`` may set
+REWARD_SETTINGS = (
+    "z_c",
+    "lipm_kp",
+    "lipm_ground_window_m",
+    "l2_alpha",
+    "gait_force_scale",
+    "gait_speed_scale",
+    "gait_clearance_m",
+    "gait_clearance_top_m",
+)
+
+
+def with_settings(cfg: RewardConfig, settings: Mapping[str, float]) -> RewardConfig:
+    """``cfg`` with some of its numbers (:data:`REWARD_SETTINGS`) replaced; ValueError, one line,
+    for another name or a value the config refuses."""
+    for name in settings:
+        if name not in REWARD_SETTINGS:
+            raise ValueError(f"unknown reward setting '{name}'; choose from {', '.join(REWARD_SETTINGS)}")
+    return replace(cfg, **{k: float(v) for k, v in settings.items()})
+
+
 def make_reward_config(ablation: str = "none", gait_prior: bool = False, **overrides) -> RewardConfig:
     """The paper's reward, plus the gait terms when ``gait_prior``, with an ablation preset applied.
 
@@ -256,8 +291,20 @@ def _swing_force(env: Tron1Env) -> np.ndarray:
     return np.sum((1.0 - env.desired_contact()) * (1.0 - np.exp(-(f**2))), axis=1)
 
 
+def swing_apex_m(cfg: RewardConfig, level: np.ndarray, num_levels: int) -> np.ndarray:
+    """Swing apex (N, 1) m the clearance term asks of envs on terrain ``level`` (N,):
+    ``gait_clearance_m``, or rising with the level to ``gait_clearance_top_m`` when that is set."""
+    h = np.full((len(level), 1), cfg.gait_clearance_m)
+    if cfg.gait_clearance_top_m is not None and num_levels > 1:
+        h += (cfg.gait_clearance_top_m - cfg.gait_clearance_m) * (
+            np.asarray(level)[:, None] / (num_levels - 1)
+        )
+    return h
+
+
 def _swing_clearance(env: Tron1Env) -> np.ndarray:
-    g, h = env.cfg.gait, env.reward_cfg.gait_clearance_m
+    g = env.cfg.gait
+    h = swing_apex_m(env.reward_cfg, env.curriculum.level, env.curriculum.num_levels)
     target = gait.swing_height_target(gait.leg_phases(env.commands.gait_phase, g.offset), g.stance, h)
     feet = env.state.foot_pos
     ground = np.stack([env.ground_height(feet[:, i, :2]) for i in range(feet.shape[1])], axis=1)

@@ -234,6 +234,11 @@ def _slope(sign: float) -> TileGenerator:
     return generate
 
 
+def riser_m(cfg: TerrainConfig, level: int) -> float:
+    """Riser height (m) of the stairs of terrain ``level`` (0 easiest)."""
+    return _lerp(cfg.step_height_m, difficulty(level, cfg.num_levels))
+
+
 def _stairs(sign: float) -> TileGenerator:
     def generate(difficulty: float, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
         run = _rings(cfg)[1]

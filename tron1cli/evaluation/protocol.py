@@ -272,7 +272,8 @@ class EvalResult:
     left: per-env mask of envs that reached the edge of the eval tile (failures too; expected
     none); exposure_s: per-env time walked on the terrain under test (s); tile_m: side of the eval
     tile (m); edge_m: distance from the centre (inf-norm, m) at which an env leaves it;
-    max_reach_m: farthest any walking env got from the centre (inf-norm, m).
+    max_reach_m: farthest any walking env got from the centre (inf-norm, m); rise_m: per env, the
+    highest the ground under its base got above the ground under its spawn point while it walked (m).
     """
 
     metrics: dict[str, float | None]
@@ -283,6 +284,7 @@ class EvalResult:
     edge_m: float
     max_reach_m: float
     unstable_resets: int
+    rise_m: np.ndarray
 
     @property
     def failed(self) -> np.ndarray:
@@ -319,6 +321,8 @@ def run_batch(
         pitch_sum = 0.0
         along = np.zeros(n)  # per env: distance walked along the command, distance commanded (m)
         asked = np.zeros(n)
+        ground0 = env.ground_height(env.state.base_pos[:, :2])
+        rise = np.zeros(n)
         for t in range(spec.steps):
             walking = ~fell & ~left
             action, hidden, h_hat = policy.act(obs, hidden)
@@ -342,6 +346,8 @@ def run_batch(
             s = env.state
             if ok.any():
                 reach = max(reach, float(np.abs(s.base_pos[ok, :2]).max()))
+                up = env.ground_height(s.base_pos[:, :2]) - ground0
+                rise[ok] = np.maximum(rise[ok], up[ok])
             errs = frame_errors(
                 s.projected_gravity[ok],
                 s.base_ang_vel_b[ok],
@@ -380,6 +386,7 @@ def run_batch(
             edge_m=round(float(env.edge), 9),
             max_reach_m=reach,
             unstable_resets=env.unstable_count,
+            rise_m=rise,
         )
     finally:
         env.close()

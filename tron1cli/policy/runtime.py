@@ -49,11 +49,22 @@ def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     return model, run_cfg, state
 
 
+def _refuse_teacher_stage(path: Path, run_cfg) -> None:
+    """Tron1Error for a checkpoint of the teacher stage: every env a teacher, no student trained."""
+    n = run_cfg.env.num_envs
+    if int(round(n * run_cfg.learner.teacher_ratio)) >= n:
+        raise Tron1Error(
+            f"{path} is a teacher-stage checkpoint (no student was trained): evaluate it with "
+            "--actor teacher, or finish it with tron1 train --preset perceptive --init"
+        )
+
+
 def load_student(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     """(StudentPolicy in eval mode, RunConfig, the raw checkpoint) of a training checkpoint."""
     from tron1cli.learn import StudentPolicy
 
     model, run_cfg, state = _load_model(path)
+    _refuse_teacher_stage(path, run_cfg)
     return StudentPolicy(model).eval(), run_cfg, state
 
 
@@ -229,4 +240,5 @@ def load_policy(path: Path | str, actor: str = "student") -> Policy:
     contract = pc.build_contract(run_cfg, int(state["learner"]["config"]["gru_hidden"]), str(path))
     if actor == "teacher":
         return Policy(path, "checkpoint", contract, run_cfg, _teacher=model)
+    _refuse_teacher_stage(path, run_cfg)
     return Policy(path, "checkpoint", contract, run_cfg, _torch=StudentPolicy(model).eval())

@@ -20,7 +20,7 @@ from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.rewards import RewardConfig, make_reward_config, with_ramps, with_weights
+from tron1cli.env.rewards import RewardConfig, make_reward_config, with_ramps, with_settings, with_weights
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
@@ -99,6 +99,7 @@ def run_config(
     """
     reward = make_reward_config(preset.ablation, gait_prior=preset.gait_prior)
     reward = with_ramps(with_weights(reward, preset.reward_weights), preset.reward_ramps)
+    reward = with_settings(reward, preset.reward_settings)
     groups = reward.groups
     env_cfg = EnvConfig(
         num_envs=preset.num_envs,
@@ -110,6 +111,8 @@ def run_config(
         depth_from=int(round(preset.num_envs * preset.teacher_ratio)),
         randomization=preset.randomization,
         pushes=preset.pushes,
+        terrain_mix=dict(preset.terrain_mix),
+        max_init_level=preset.init_level,
     )
     learner_cfg = replace(
         LearnerConfig(),
@@ -130,7 +133,9 @@ def run_config(
         save_every=save_every,
         preset=preset.name,
         preset_overrides=tuple(overrides),
-        saved_reward=reward if preset.reward_weights or preset.reward_ramps else None,
+        saved_reward=reward
+        if preset.reward_weights or preset.reward_ramps or preset.reward_settings
+        else None,
     )
 
 
@@ -255,7 +260,8 @@ class Trainer:
             return False
         mine = self.cfg.to_dict()["env"]
         theirs = json.loads(source["config"])["env"]
-        if any(theirs.get(k) != mine[k] for k in ("terrain", "terrain_cfg", "num_envs", "seed")):
+        keys = ("terrain", "terrain_cfg", "num_envs", "seed", "terrain_mix")
+        if any(theirs.get(k, {} if k == "terrain_mix" else None) != mine[k] for k in keys):
             return False
         return self._restore_levels(source)
 

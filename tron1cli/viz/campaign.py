@@ -1,7 +1,7 @@
 """A training campaign's record: the metrics of its phases as one series, and the card's table.
 
 A campaign is one or more run directories in order, each phase started with ``tron1 train
---init`` from the previous phase's weights (and each possibly resumed across sessions).
+--init`` from the previous phase's weights (and each possibly resumed across runs).
 """
 
 from __future__ import annotations

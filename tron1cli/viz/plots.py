@@ -70,7 +70,7 @@ def training_curves(
 
 
 def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20) -> Path:
-    """A perceptive campaign against wall-clock minutes (resumed sessions included; a list of run
+    """A perceptive campaign against wall-clock minutes (resumed runs included; a list of run
     directories is its phases in order, each start marked by a dotted line): survival and velocity
     tracking error of both groups, terrain level per type, and the student's heightmap
     reconstruction error; each curve a running mean over ``smooth`` iterations within a phase."""

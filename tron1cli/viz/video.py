@@ -7,10 +7,14 @@ At 30 fps a frame falls between two 50 Hz policy steps: positions are interpolat
 base position linearly, the base quaternion by normalised lerp).
 
 Rendering runs in a child process (``python -m tron1cli.viz.video JOB OUT``) because MuJoCo reads
-``MUJOCO_GL`` once, when it is imported, and the run's process imported it long before: the child
-gets ``MUJOCO_GL`` set before its first import. :func:`gl_backends` picks ``egl`` where a GPU is
-(``/dev/nvidiactl`` or a DRI render node), then ``osmesa`` (software, ``libosmesa6``); a
-``MUJOCO_GL`` set by the user is taken as it is. Each view gets a copy of its env's ground (the
+``MUJOCO_GL`` once, when it is imported (and imports that OpenGL backend with itself), and the
+run's process imported it long before: the child gets ``MUJOCO_GL`` set before its first import.
+:func:`gl_backends` tries ``egl`` first (a GPU's driver, or Mesa's EGL, which renders in software
+without a GPU: ``libegl1``), then ``osmesa`` (Mesa's software renderer, ``libosmesa6``); a
+``MUJOCO_GL`` set by the user is the only one tried. A backend that cannot load in the child
+(an exception while MuJoCo is imported or while its renderer is made, or a crash before the
+child says the renderer is ready) moves on to the next; when none loads, one line says which
+system package to install (:func:`no_backend_message`). Each view gets a copy of its env's ground (the
 height field cropped to where the robot went) with a checker texture, a low sun so that step
 edges shade, the left foot orange and the right foot blue, the commanded (green) and measured
 (blue, mean over the last 0.5 s: about one gait cycle) planar velocity as arrows above the base,
@@ -28,6 +32,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,14 +48,16 @@ DEFAULT_SIZE = (640, 480)  #: width, height of deploy-sim and eval videos (px)
 GRID_SIZE = (1280, 960)  #: push-test: a 4 x 4 grid of 320 x 240 views
 GRID_COLS = 4
 CROP_MARGIN_M = 6.0  #: ground kept around the recorded trajectory (m): what the camera sees
-#: what to install when a backend cannot be loaded (Debian / Ubuntu package names)
+#: what to install when a backend cannot be loaded (Debian / Ubuntu package names; Debian's
+#: libegl1 pulls Mesa's EGL driver, libegl-mesa0, which renders in software where no GPU is)
 BACKEND_PACKAGES = {
+    "egl": "libegl1",
     "osmesa": "libosmesa6",
-    "egl": "libegl1 (and the GPU's driver)",
     "glx": "libglfw3 and a display",
     "glfw": "libglfw3 and a display",
 }
 BACKEND_MISSING_RC = 3  #: the render child's exit code when the OpenGL backend is unavailable
+GL_READY = "tron1-video: renderer ready"  #: the child's stdout line once its first renderer is made
 FOOT_RGBA = {"foot_L_geom": (1.0, 0.45, 0.05, 1.0), "foot_R_geom": (0.1, 0.45, 1.0, 1.0)}
 CMD_RGBA = (0.16, 0.86, 0.31, 1.0)
 VEL_RGBA = (0.16, 0.47, 1.0, 1.0)
@@ -89,13 +96,55 @@ def check_video_path(path: Path) -> Path:
 
 
 def gl_backends(environ: dict[str, str] | None = None) -> list[str]:
-    """MUJOCO_GL values to try, in order: the user's own, else egl where a GPU is, then osmesa."""
+    """MUJOCO_GL values to try, in order: the user's own alone, else ``egl`` (a GPU's, or Mesa's
+    software EGL where there is none), then ``osmesa``."""
     env = os.environ if environ is None else environ
     user = env.get("MUJOCO_GL", "").strip().lower()
-    if user:
-        return [user]
-    gpu = Path("/dev/nvidiactl").exists() or any(Path("/dev/dri").glob("renderD*"))
-    return ["egl", "osmesa"] if gpu else ["osmesa"]
+    return [user] if user else ["egl", "osmesa"]
+
+
+def _install_hint(backend: str) -> str:
+    """What to install for ``backend`` (a Debian / Ubuntu package and its apt-get line)."""
+    pkg = BACKEND_PACKAGES.get(backend)
+    if pkg is None:
+        return "install an OpenGL library MuJoCo can use"
+    return f"install {pkg} (e.g. apt-get install -y {pkg.split()[0]})"
+
+
+def no_backend_message(tried: Sequence[str], user_set: bool, backend: str = "") -> str:
+    """The one line for a video no OpenGL backend could render: what each try said and which
+    system package to install (``backend``: the user's MUJOCO_GL when ``user_set``)."""
+    if user_set:
+        hint = f"{_install_hint(backend)}, or unset MUJOCO_GL to let tron1 try egl, then osmesa"
+    else:
+        hint = (
+            "install libegl1 (Mesa's EGL, which renders without a GPU too) or libosmesa6, "
+            "e.g. apt-get install -y libegl1"
+        )
+    return f"--video: MuJoCo could not render offscreen ({'; '.join(tried)}); {hint}"
+
+
+def _is_gl_import(filename: str) -> bool:
+    parts = Path(filename).parts
+    return "mujoco" in parts and (
+        parts[-1] == "gl_context.py" or any(p in parts for p in ("osmesa", "egl", "glfw", "cgl"))
+    )
+
+
+def gl_import_error(exc: BaseException, environ: dict[str, str] | None = None) -> str | None:
+    """The one line for ``exc`` when it was raised while MuJoCo imported the OpenGL backend that a
+    user's ``MUJOCO_GL`` names (MuJoCo imports it with itself: OSMesa without libosmesa6 raises
+    ``AttributeError: 'NoneType' object has no attribute 'glGetError'`` there); None otherwise."""
+    env = os.environ if environ is None else environ
+    backend = env.get("MUJOCO_GL", "").strip().lower()
+    tb = traceback.extract_tb(exc.__traceback__)
+    if not backend or not any(_is_gl_import(f.filename) for f in tb):
+        return None
+    what = (str(exc).splitlines() or [""])[0]
+    return (
+        f"MUJOCO_GL={backend}: MuJoCo cannot load this OpenGL backend ({type(exc).__name__}: {what}); "
+        f"{_install_hint(backend)}, or unset MUJOCO_GL"
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -286,13 +335,15 @@ class VideoRecorder:
         if not self.frames:
             raise VideoError("--video: nothing was recorded")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        user_set = bool(os.environ.get("MUJOCO_GL", "").strip())
+        backends = backends or gl_backends()
         tried: list[str] = []
         with tempfile.TemporaryDirectory(prefix="tron1-video-") as tmp:
             job, stats = Path(tmp) / "job.npz", Path(tmp) / "stats.json"
             self.write_job(job)
-            for backend in backends or gl_backends():
+            for backend in backends:
                 env = dict(os.environ, MUJOCO_GL=backend)
-                if "MUJOCO_GL" not in os.environ:  # ours to choose: PyOpenGL follows it
+                if not user_set:  # ours to choose: PyOpenGL follows it
                     env["PYOPENGL_PLATFORM"] = backend
                 proc = subprocess.run(
                     [sys.executable, "-m", "tron1cli.viz.video", str(job), str(self.path), str(stats)],
@@ -303,15 +354,15 @@ class VideoRecorder:
                 if proc.returncode == 0:
                     return json.loads(stats.read_text())
                 last = (proc.stderr.strip().splitlines() or [f"exit code {proc.returncode}"])[-1]
-                if proc.returncode != BACKEND_MISSING_RC:
+                # the backend did not load: the child said so, or died of a signal before its
+                # renderer was made (a GL driver that crashes on start)
+                gl_failed = proc.returncode == BACKEND_MISSING_RC or (
+                    proc.returncode < 0 and GL_READY not in (proc.stdout or "")
+                )
+                if not gl_failed:
                     raise VideoError(f"--video: rendering failed (MUJOCO_GL={backend}): {last}")
                 tried.append(f"MUJOCO_GL={backend}: {last}")
-        pkg = BACKEND_PACKAGES.get(backend, "an OpenGL library for MuJoCo")  # the last one tried
-        raise VideoError(
-            f"--video: no offscreen OpenGL for MuJoCo ({'; '.join(tried)}); install {pkg}, "
-            f"e.g. apt-get install -y {pkg.split()[0]}",
-            backend_missing=True,
-        )
+        raise VideoError(no_backend_message(tried, user_set, backends[-1]), backend_missing=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -533,11 +584,17 @@ def frame_strip(rows: list[list[np.ndarray]], max_width: int = STRIP_MAX_WIDTH) 
 
 def render_job(job: Path, out: Path, stats: Path) -> None:
     """Render a recording (:meth:`VideoRecorder.write_job`) to ``out`` (H.264 MP4) and write its
-    figures to ``stats``. Exits :data:`BACKEND_MISSING_RC` when no OpenGL context can be made."""
+    figures to ``stats``. Exits :data:`BACKEND_MISSING_RC` when the OpenGL backend ``MUJOCO_GL``
+    names cannot be loaded (MuJoCo imports it with itself) or no context can be made."""
     import time
 
     import av
-    import mujoco
+
+    try:  # the run's process imported mujoco already: what fails here is MUJOCO_GL's backend
+        import mujoco
+    except Exception as e:  # e.g. OSMesa without libosmesa6: AttributeError from PyOpenGL
+        print(f"{type(e).__name__}: {(str(e).splitlines() or [''])[0]}", file=sys.stderr)
+        sys.exit(BACKEND_MISSING_RC)
 
     z = np.load(job)
     meta = json.loads(str(z["meta"]))
@@ -570,8 +627,10 @@ def render_job(job: Path, out: Path, stats: Path) -> None:
                 try:
                     r = mujoco.Renderer(model, th, tw)
                 except Exception as e:  # the GL backend: ImportError, RuntimeError, GLError, ...
-                    print(f"{type(e).__name__}: {str(e).splitlines()[0]}", file=sys.stderr)
+                    print(f"{type(e).__name__}: {(str(e).splitlines() or [''])[0]}", file=sys.stderr)
                     sys.exit(BACKEND_MISSING_RC)
+                if s == 0 and j == 0:
+                    print(GL_READY, flush=True)
                 arrays = {k: z[f"{key}_{k}"] for k in ("qpos", "cmd", "vel", "wrench", "ended")}
                 views.append((v["label"], model, mujoco.MjData(model), r, _Camera(mujoco, 2.4), arrays))
             try:

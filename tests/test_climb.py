@@ -1,0 +1,171 @@
+"""Learning to climb: the climb probe, the teacher stage, the terrain mix and the swing apex."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tests.conftest import tron1
+from tests.test_bad_input import one_error_line
+from tron1cli.config import EnvConfig
+from tron1cli.env.curriculum import TerrainCurriculum, deal_types
+from tron1cli.env.rewards import RewardConfig, swing_apex_m, with_settings
+from tron1cli.env.terrain import TerrainBank, TerrainConfig, riser_m
+from tron1cli.evaluation.climb import risers_climbed
+
+
+def test_equal_shares_deal_round_robin():
+    assert deal_types(14, np.ones(7)).tolist() == [i % 7 for i in range(14)]
+
+
+def test_shares_are_met_and_interleaved():
+    shares = np.array([4, 2, 1, 1, 1, 1, 0])
+    kind = deal_types(1000, shares)
+    assert np.bincount(kind, minlength=7).tolist() == [400, 200, 100, 100, 100, 100, 0]
+    for block in (kind[:500], kind[500:]):  # teachers and students get the same mix, within one env
+        assert np.abs(np.bincount(block, minlength=7) - 500 * shares / shares.sum()).max() <= 1.0
+
+
+def test_curriculum_deals_types_by_the_mix():
+    cfg = TerrainConfig(tile_size_m=2.0, num_levels=3, variants_per_level=1)
+    bank = TerrainBank(("flat", "stairs_up"), cfg, seed=0)
+    cur = TerrainCurriculum(bank, 8, np.random.default_rng(0), max_init_level=2, shares=np.array([1.0, 3.0]))
+    assert cur.kind.tolist().count(1) == 6
+    assert np.all(bank.kind[cur.tile] == cur.kind) and np.all(bank.level[cur.tile] == cur.level)
+
+
+@pytest.mark.parametrize(
+    "mix,text",
+    [
+        ({"lava": 1.0}, "'lava' is not a type of 'mixed'"),
+        ({"stairs_up": -1.0}, "not a finite number >= 0"),
+        ({"stairs_up": 0.0}, "every share is 0"),
+        ({"flat": 1.0}, "'flat' is not a type of 'stairs'"),
+    ],
+)
+def test_a_bad_terrain_mix_is_refused(mix, text):
+    terrain = "stairs" if "flat" in mix else "mixed"
+    with pytest.raises(ValueError, match=text):
+        EnvConfig(terrain=terrain, terrain_mix=mix)
+
+
+def test_type_shares_in_bank_order():
+    cfg = EnvConfig(terrain="stairs", terrain_mix={"stairs_down": 1.0, "stairs_up": 3.0})
+    assert cfg.type_shares() == [3.0, 1.0]
+    assert EnvConfig(terrain="stairs").type_shares() is None
+
+
+def test_swing_apex_rises_with_the_level_hand_computed():
+    level = np.array([0, 9, 3])
+    flat = swing_apex_m(RewardConfig(), level, 10)
+    assert flat.shape == (3, 1) and np.allclose(flat, 0.1)
+    rising = swing_apex_m(with_settings(RewardConfig(), {"gait_clearance_top_m": 0.2}), level, 10)
+    assert np.allclose(rising[:, 0], [0.1, 0.2, 0.1 + 0.1 * 3 / 9])
+
+
+def test_reward_settings_refuse_unknown_names_and_bad_lengths():
+    with pytest.raises(ValueError, match="unknown reward setting 'gait_height'"):
+        with_settings(RewardConfig(), {"gait_height": 0.2})
+    with pytest.raises(ValueError, match="gait_clearance_top_m must be a positive length"):
+        with_settings(RewardConfig(), {"gait_clearance_top_m": -0.2})
+    cfg = with_settings(RewardConfig(), {"gait_clearance_top_m": 0.2})
+    assert RewardConfig.from_dict(cfg.to_dict()) == cfg  # saved with the run and read back
+
+
+def test_riser_heights_of_the_probe_levels():
+    cfg = TerrainConfig()
+    assert [round(riser_m(cfg, lv), 6) for lv in (0, 3, 6, 9)] == [0.02, 0.08, 0.14, 0.2]
+
+
+def test_risers_climbed_hand_computed():
+    # 0 m: none; 0.19 m over 0.2 m risers: one (the base over the edge reads part of a riser);
+    # 0.41 m: two; 0.09 m: none
+    assert risers_climbed(np.array([0.0, 0.19, 0.41, 0.09]), 0.2) == pytest.approx(0.75)
+
+
+@pytest.fixture(scope="module")
+def teacher_stage_ckpt(tmp_path_factory):
+    """One iteration of the teacher stage (every env a teacher) on stairs with perception."""
+    from tron1cli.config import GaitConfig
+    from tron1cli.learn import LearnerConfig
+    from tron1cli.train.runner import RunConfig, Trainer
+
+    run = tmp_path_factory.mktemp("teacher_stage")
+    env = EnvConfig(num_envs=4, nthread=1, terrain="stairs", perception=True, depth_from=4, gait=GaitConfig())
+    learner = replace(
+        LearnerConfig(),
+        num_steps_per_env=4,
+        actor_hidden=(32,),
+        critic_hidden=(32,),
+        rec_batch_envs=4,
+        teacher_ratio=1.0,
+    )
+    trainer = Trainer(run, RunConfig(env=env, learner=learner, iterations=1))
+    trainer.run()
+    trainer.close()
+    return run / "checkpoints" / "latest.pt"
+
+
+def test_the_probe_scores_teacher_and_student(tiny_ckpt_vision, tmp_path):
+    r = tron1(
+        "eval",
+        str(tiny_ckpt_vision),
+        "--climb",
+        "--envs",
+        "2",
+        "--steps",
+        "5",
+        "--json",
+        "--out",
+        str(tmp_path),
+    )
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    rows = report["rows"]
+    assert [(x["actor"], x["level"]) for x in rows] == [
+        (a, lv) for a in ("teacher", "student") for lv in (3, 6, 9)
+    ]
+    assert [round(x["riser_m"], 6) for x in rows[:3]] == [0.08, 0.14, 0.2]
+    for x in rows:
+        assert 0.0 <= x["success"] <= 1.0 and x["risers"] >= 0.0
+    assert json.loads((tmp_path / "climb.json").read_text()) == report
+    assert (tmp_path / "climb.csv").read_text().splitlines()[0].startswith("actor,level,riser_m")
+
+
+def test_a_teacher_stage_checkpoint_has_no_student(teacher_stage_ckpt, tmp_path):
+    r = tron1("eval", str(teacher_stage_ckpt), "--climb", "--envs", "2", "--steps", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    assert [x["actor"] for x in json.loads(r.stdout)["rows"]] == ["teacher"] * 3
+    assert "teacher-stage checkpoint" in r.stderr
+    one_error_line(
+        tron1("export-onnx", str(teacher_stage_ckpt), "-o", str(tmp_path / "x.onnx")),
+        1,
+        "teacher-stage checkpoint (no student was trained)",
+    )
+
+
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--climb", "--terrain", "flat"], "--climb sets its own terrain and levels"),
+        (["--climb", "--actor", "coach"], "unknown --actor 'coach'"),
+    ],
+)
+def test_probe_options_refused(tiny_ckpt_vision, args, text):
+    one_error_line(tron1("eval", str(tiny_ckpt_vision), *args), 2, text)
+
+
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--terrain", "mixed", "--terrain-mix", "lava=1"], "'lava' is not a type of 'mixed'"),
+        (["--terrain", "mixed", "--terrain-mix", "stairs_up"], "--terrain-mix wants TYPE=NUMBER pairs"),
+        (["--terrain", "stairs", "--init-level", "10"], "max_init_level must lie in 0..9"),
+        (["--terrain", "stairs", "--reward-settings", "apex=1"], "unknown reward setting 'apex'"),
+    ],
+)
+def test_climb_training_options_refused(tmp_path, args, text):
+    one_error_line(tron1("train", *args, "--run-dir", str(tmp_path / "r")), 2, text)
