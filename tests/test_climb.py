@@ -169,3 +169,26 @@ def test_probe_options_refused(tiny_ckpt_vision, args, text):
 )
 def test_climb_training_options_refused(tmp_path, args, text):
     one_error_line(tron1("train", *args, "--run-dir", str(tmp_path / "r")), 2, text)
+
+
+def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
+    run = tmp_path / "mix"
+    r = tron1(
+        "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
+        "--envs", "4", "--iterations", "1", "--steps-per-env", "2", "--hidden", "16", "--run-dir", str(run),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    saved = json.loads((run / "config.json").read_text())["env"]
+    assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
+    r = tron1(
+        "eval",
+        str(run / "checkpoints" / "latest.pt"),
+        "--climb",
+        "--actor",
+        "teacher",
+        "--envs",
+        "1",
+        "--steps",
+        "2",
+    )
+    assert r.returncode == 0, r.stderr

@@ -15,6 +15,13 @@ class UsageError(Tron1Error):
     exit_code = 2
 
 
+class Interrupted(Tron1Error):
+    """Ctrl-C (or SIGTERM where a command maps it) stopped a command (exit code 130); the message
+    says what the command kept."""
+
+    exit_code = 130
+
+
 def one_line(message: str) -> str:
     """``message`` as one line: its lines joined with '; ', blank ones dropped."""
     return "; ".join(x.strip() for x in str(message).splitlines() if x.strip())

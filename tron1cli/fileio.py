@@ -45,9 +45,19 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], None], fsync: bool = Tr
                 f.flush()
                 os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.filename is None and e.errno is not None:
+            # a write that failed (a disk full) names no file: name the one being written
+            raise OSError(e.errno, e.strerror or str(e), str(path)) from e
         raise
+
+
+def write_file(path: Path, data: bytes | str, fsync: bool = False) -> None:
+    """Write ``data`` (text as UTF-8) to ``path`` atomically: a failed write (a disk that fills)
+    leaves the earlier file as it was, never a file cut short."""
+    blob = data.encode() if isinstance(data, str) else bytes(data)
+    atomic_write(Path(path), lambda f: f.write(blob), fsync=fsync)
 
 
 def clean_stale_temps(folder: Path, prefix: str = ".") -> list[Path]:
@@ -71,7 +81,10 @@ def same_path(a: Path | str, b: Path | str) -> bool:
             return os.path.samefile(a, b)
     except OSError:
         pass
-    return a.resolve() == b.resolve()
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):  # a symbolic link loop: compare the paths as given
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _check_can_create(folder: Path, option: str, shown: Path) -> None:

@@ -54,12 +54,48 @@ def note(message: str) -> None:
     err.print(f"note: {escape(one_line(message))}", highlight=False, soft_wrap=True)
 
 
+def input_problem(path: Path | str, what: str = "policy") -> str | None:
+    """Why ``path`` cannot be read as an input file (one line), or None when it can: not found, a
+    folder, a broken link, a symbolic link loop."""
+    p = Path(path)
+    if p.is_file():
+        return None
+    if p.is_symlink():
+        try:
+            p.resolve(strict=True)
+        except RuntimeError:  # Python 3.11-3.12 on a loop
+            return f"{what} {path}: a symbolic link loop"
+        except OSError as e:
+            import errno
+
+            if e.errno == errno.ELOOP:
+                return f"{what} {path}: a symbolic link loop"
+            return f"{what} {path}: a broken link (to {os.readlink(p)})"
+    if p.is_dir():
+        return f"{what} {path} is a folder, not a file"
+    return f"{what} not found: {path}"
+
+
 def check_inputs(paths, what: str = "policy") -> None:
-    """Exit 1 with ``<what> not found: PATH`` for the first of ``paths`` that is not a file: called
-    before a command imports torch and the env, so a mistyped path costs no start-up."""
+    """Exit 1 with ``<what> not found: PATH`` (or what else is wrong: :func:`input_problem`) for the
+    first of ``paths`` that is not a file: called before a command imports torch and the env, so
+    a mistyped path costs no start-up."""
     for path in paths:
-        if path is not None and not Path(path).is_file():
-            fail(f"{what} not found: {path}", 1)
+        problem = None if path is None else input_problem(path, what)
+        if problem is not None:
+            fail(problem, 1)
+
+
+def path_option(value) -> Path:
+    """Parser of an output path option: refuses an empty one (``--out ""`` would be the current
+    folder), exit 2."""
+    import typer
+
+    if isinstance(value, Path):
+        return value
+    if not str(value).strip():
+        raise typer.BadParameter("an empty path; give a file or folder name")
+    return Path(value)
 
 
 def check_outputs(files=(), dirs=(), inputs=()) -> list[Path]:
@@ -228,18 +264,20 @@ VIDEO_HELP = "Record an MP4 video (30 fps, real time; a PNG strip of 5 frames go
 VIDEO_SIZE_HELP = "Video frame size WIDTHxHEIGHT (even numbers)"
 
 
-def open_video(path, size: str | None, default: tuple[int, int]):
+def open_video(path, size: str | None, default: tuple[int, int], inputs=()):
     """A :class:`tron1cli.viz.video.VideoRecorder` for ``--video PATH --video-size WxH``; None
-    without ``--video``. Exits 2 on a bad path or size (before the run)."""
+    without ``--video``. Exits 2 on a bad path or size, and on a place the video and its strip
+    cannot be written (a file in the way, no permission; as --out is checked), before the run."""
     if path is None:
         return None
-    from tron1cli.viz.video import VideoRecorder, check_video_path, parse_size
+    from tron1cli.viz.video import VideoRecorder, check_video_path, parse_size, strip_path
 
     try:
         check_video_path(path)
         wh = parse_size(size) if size else default
     except ValueError as e:
         fail(str(e), 2)
+    check_outputs(files=[("--video", Path(path)), ("--video", strip_path(Path(path)))], inputs=inputs)
     return VideoRecorder(path, wh)
 
 

@@ -115,7 +115,7 @@ def deploy_sim(
         check_display()
     from tron1cli.viz.video import DEFAULT_SIZE
 
-    recorder = open_video(video, video_size, DEFAULT_SIZE)
+    recorder = open_video(video, video_size, DEFAULT_SIZE, inputs=[policy])
     cfg = DeployConfig(
         terrain=terrain,
         level=level,
@@ -150,15 +150,22 @@ def deploy_sim(
         transient=True,
         disable=as_json or not err.is_terminal,
     )
+    done = [0]
     try:
         with progress:
             task = progress.add_task("run", total=int(round(duration * 50)))
 
             def on_step(k: int, total: int) -> None:
+                done[0] = k
                 if k % 25 == 0 or k == total:
                     progress.update(task, completed=k, total=total)
 
             rep = sim.run(on_step)
+    except KeyboardInterrupt:
+        kept = "no results written" + (", no video" if recorder is not None else "")
+        if target is not None and target.kind == "save":
+            kept += f"; the rerun recording {target.arg} holds what was streamed"
+        fail(f"deploy-sim interrupted after {done[0]:,} policy steps: {kept}", 130)
     finally:
         sim.close()
         if stream is not None:

@@ -26,6 +26,7 @@ from tron1cli.cli.common import (
     finite,
     open_video,
     out,
+    path_option,
     print_json,
     render_video,
     rerun_file,
@@ -33,7 +34,7 @@ from tron1cli.cli.common import (
 )
 from tron1cli.errors import Tron1Error
 from tron1cli.evaluation.metric_names import METRICS, PERCENT_METRICS
-from tron1cli.fileio import atomic_write
+from tron1cli.fileio import atomic_write, write_file
 from tron1cli.train.layout import policy_label
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
@@ -204,7 +205,11 @@ def eval_cmd(
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
-        None, "--out", help="Write results.json, results.csv and plots here."
+        None,
+        "--out",
+        parser=path_option,
+        metavar="DIR",
+        help="Write results.json, results.csv and plots here.",
     ),
     rerun: str = typer.Option("off", "--rerun", help="Stream env 0 of the first batch: " + RERUN_FORMS),
     video: Path | None = typer.Option(
@@ -522,31 +527,37 @@ def _warn_left(runs: list, what: str) -> None:
         )
 
 
+def _csv_text(rows: list[list]) -> str:
+    """CSV rows as the text csv.writer gives a file."""
+    import io
+
+    buf = io.StringIO()
+    csv.writer(buf).writerows(rows)
+    return buf.getvalue()
+
+
 def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict) -> None:
     """results.json, results.csv and, per swept dimension, success_by_speed_DIM.csv and .png."""
     from tron1cli.evaluation.protocol import SPEED_DIMS
     from tron1cli.viz.plots import success_by_speed
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "results.json").write_text(json.dumps(report, indent=2))
-    with open(out_dir / "results.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["method", "terrain", "metric", "mean", "std", "n"])
-        for label, per in report["results"].items():
-            for t, ms in per.items():
-                for m, a in ms.items():
-                    w.writerow([label, t, m, a["mean"], a["std"], a["n"]])
+    # each file written whole or not at all (a full disk keeps the earlier one)
+    write_file(out_dir / "results.json", json.dumps(report, indent=2))
+    rows = [["method", "terrain", "metric", "mean", "std", "n"]]
+    for label, per in report["results"].items():
+        for t, ms in per.items():
+            for m, a in ms.items():
+                rows.append([label, t, m, a["mean"], a["std"], a["n"]])
+    write_file(out_dir / "results.csv", _csv_text(rows))
     for dim, per_label in by_speed.items():
         unit = SPEED_DIMS[dim].unit
-        with open(out_dir / f"success_by_speed_{dim}.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(
-                ["method", "terrain", f"{dim}_{unit.replace('/', 'p')}", "success_mean", "success_std"]
-            )
-            for label, per in per_label.items():
-                for t, d in per.items():
-                    for v, a in d.items():
-                        w.writerow([label, t, v, a["mean"], a["std"]])
+        rows = [["method", "terrain", f"{dim}_{unit.replace('/', 'p')}", "success_mean", "success_std"]]
+        for label, per in per_label.items():
+            for t, d in per.items():
+                for v, a in d.items():
+                    rows.append([label, t, v, a["mean"], a["std"]])
+        write_file(out_dir / f"success_by_speed_{dim}.csv", _csv_text(rows))
         terrains = next(iter(per_label.values()))
         curves = {
             (label if len(terrains) == 1 else f"{label} / {t}"): per[t]
@@ -582,7 +593,11 @@ def push_test(
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the envs and the mixed pushes."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
-        None, "--out", help="Write results.json, results.csv and the plot here."
+        None,
+        "--out",
+        parser=path_option,
+        metavar="DIR",
+        help="Write results.json, results.csv and the plot here.",
     ),
     rerun: str = typer.Option("off", "--rerun", help="Stream one pushed env: " + RERUN_FORMS),
     watch: str = typer.Option("+Fx", "--watch", help="Push type of the env --rerun streams."),
@@ -708,13 +723,12 @@ def push_test(
     replaced = out_dir is not None and (out_dir / "results.json").exists()
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "results.json").write_text(json.dumps(report, indent=2))
-        with open(out_dir / "results.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["method", "push", "survival_mean", "survival_std"])
-            for label in loaded:
-                for k, a in survival[label].items():
-                    w.writerow([label, k, a["mean"], a["std"]])
+        write_file(out_dir / "results.json", json.dumps(report, indent=2))
+        rows = [["method", "push", "survival_mean", "survival_std"]]
+        for label in loaded:
+            for k, a in survival[label].items():
+                rows.append([label, k, a["mean"], a["std"]])
+        write_file(out_dir / "results.csv", _csv_text(rows))
         push_survival(
             {label: {k: a["mean"] for k, a in survival[label].items()} for label in loaded},
             out_dir / "push_survival.png",

@@ -7,13 +7,28 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from tron1cli.cli.common import check_inputs, check_outputs, err, finite, note, out, print_json
+from tron1cli.cli.common import (
+    check_inputs,
+    check_outputs,
+    err,
+    fail,
+    finite,
+    note,
+    out,
+    path_option,
+    print_json,
+)
 
 
 def export_onnx(
     checkpoint: Path = typer.Argument(..., help="Training checkpoint (.pt).", show_default=False),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="ONNX file [default: beside the checkpoint]."
+        None,
+        "--output",
+        "-o",
+        parser=path_option,
+        metavar="FILE.onnx",
+        help="ONNX file (.onnx) [default: beside the checkpoint].",
     ),
     parity_steps: int = typer.Option(200, "--parity-steps", min=1, help="Recurrent rollout steps compared."),
     tol: float = typer.Option(
@@ -29,10 +44,15 @@ def export_onnx(
     """
     check_inputs([checkpoint], "checkpoint")
     from tron1cli.policy.export import default_output
+    from tron1cli.train.checkpoint import refuse_onnx
+
+    refuse_onnx(checkpoint)  # before the output check: an ONNX's default output is itself
     from tron1cli.policy.export import export_onnx as run_export
 
     target = output if output is not None else default_output(checkpoint)
     replaced = check_outputs(files=[("-o", target)], inputs=[checkpoint])
+    if target.suffix.lower() != ".onnx":  # a .pt name would pass it off as a checkpoint
+        fail(f"-o {target}: an ONNX export's name ends in .onnx, e.g. -o {target.with_suffix('.onnx')}", 2)
     what = f"exporting {checkpoint} and comparing onnxruntime with torch over {parity_steps} steps ..."
     with err.status(what):  # transient: an error is the only line
         rep = run_export(checkpoint, target, parity_steps, tol)

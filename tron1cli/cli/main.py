@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 
 import typer
@@ -31,7 +32,7 @@ except Exception as e:  # a known MUJOCO_GL whose OpenGL backend cannot load (a 
     sys.stderr.write(f"error: {line}\n")
     sys.exit(1)
 from tron1cli.cli.common import fail, route_mujoco_warnings
-from tron1cli.errors import Tron1Error
+from tron1cli.errors import Interrupted, Tron1Error
 
 app = typer.Typer(
     name="tron1",
@@ -61,16 +62,43 @@ def _root(
         typer.echo(ctx.get_help())
 
 
+#: what a command keeps when Ctrl-C stops it where it has no handler of its own (train saves a
+#: checkpoint, eval and push-test count the policy steps run, deploy-robot stops the robot)
+KEPT_ON_INTERRUPT = {
+    "train": "no training iteration had run; nothing was saved",
+    "export-onnx": "nothing written (an earlier output file is left as it was)",
+    "report": "nothing written",
+}
+
+
+def _interruptible(name: str, command):
+    """``command`` with Ctrl-C turned into :class:`Interrupted` (one line, exit 130): typer itself
+    would swallow KeyboardInterrupt and exit 130 with nothing said."""
+
+    @functools.wraps(command)
+    def run(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except KeyboardInterrupt:
+            kept = KEPT_ON_INTERRUPT.get(name, "no results written")
+            raise Interrupted(f"{name} interrupted: {kept}") from None
+
+    return run
+
+
 # in the order a user meets them (`tron1 --help` lists them as registered)
-app.command("train")(train_cmd.train)
-app.command("eval")(evaluate_cmd.eval_cmd)
-app.command("push-test")(evaluate_cmd.push_test)
-app.command("export-onnx")(export_cmd.export_onnx)
-app.command("deploy-sim")(deploy_sim_cmd.deploy_sim)
-app.command("deploy-robot")(deploy_robot_cmd.deploy_robot)
-app.command("sim-robot")(deploy_robot_cmd.sim_robot)
-app.command("report")(report_cmd.report)
-app.command("bench")(bench_cmd.bench)
+for _name, _command in (
+    ("train", train_cmd.train),
+    ("eval", evaluate_cmd.eval_cmd),
+    ("push-test", evaluate_cmd.push_test),
+    ("export-onnx", export_cmd.export_onnx),
+    ("deploy-sim", deploy_sim_cmd.deploy_sim),
+    ("deploy-robot", deploy_robot_cmd.deploy_robot),
+    ("sim-robot", deploy_robot_cmd.sim_robot),
+    ("report", report_cmd.report),
+    ("bench", bench_cmd.bench),
+):
+    app.command(_name)(_interruptible(_name, _command))
 
 
 def main() -> None:
@@ -104,6 +132,8 @@ def _main() -> None:
         where = f"{e.filename}: " if e.filename else ""
         fail(f"{where}{e.strerror or e}", 1)
     except KeyboardInterrupt:
+        fail("interrupted", 130)
+    if code == 130:  # Ctrl-C while typer parsed the command line: typer says nothing
         fail("interrupted", 130)
     sys.exit(code if isinstance(code, int) else 0)
 

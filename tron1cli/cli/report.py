@@ -8,7 +8,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from tron1cli.cli.common import check_outputs, err, fail, finite, out
+from tron1cli.cli.common import check_outputs, err, fail, finite, out, path_option, warn
 from tron1cli.train.layout import METRICS
 
 
@@ -26,7 +26,11 @@ def report(
     ),
     markdown: bool = typer.Option(False, "--markdown", help="Print a Markdown table (for a card) instead."),
     png: Path | None = typer.Option(
-        None, "--png", help="Also write the curves (survival, tracking, level per type, heightmap error)."
+        None,
+        "--png",
+        parser=path_option,
+        metavar="FILE.png",
+        help="Also write the curves (survival, tracking, level per type, heightmap error).",
     ),
 ) -> None:
     """Where training stands, read from the run directories alone (no checkpoint is loaded): one
@@ -41,7 +45,7 @@ def report(
         fail(f"--png {png}: the file must end in .png, e.g. --png curves.png", 2)
     check_outputs(files=[("--png", png)], inputs=[Path(d) / METRICS for d in run_dirs])
     try:
-        rows = campaign_phases(run_dirs)
+        rows = campaign_phases(run_dirs, on_skip=warn)
     except ValueError as e:
         fail(str(e), 1)
     if not rows:

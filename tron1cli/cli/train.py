@@ -19,11 +19,14 @@ from tron1cli.cli.common import (
     backend_note,
     backend_option,
     check_backend,
+    check_inputs,
     check_outputs,
     err,
     fail,
     finite,
+    note,
     out,
+    path_option,
     preset_default,
     rerun_file,
     resolve_device,
@@ -100,7 +103,9 @@ def train(
     ablation: str = typer.Option(
         "none", "--ablation", "-a", help="none, no-stable-reward, single-critic, no-rfm, l2-velocity."
     ),
-    run_dir: Path = typer.Option(Path("runs/latest"), "--run-dir", "-o", help="Run directory."),
+    run_dir: Path = typer.Option(
+        Path("runs/latest"), "--run-dir", "-o", parser=path_option, metavar="DIR", help="Run directory."
+    ),
     resume: bool = typer.Option(
         False, "--resume", help="Continue the run in --run-dir from its last checkpoint."
     ),
@@ -345,6 +350,7 @@ def train(
     from tron1cli.train.layout import check_run_dir, checkpoint_dir
 
     check_run_dir(run_dir, resume)
+    check_inputs([init], "--init checkpoint")
     check_outputs(files=[rerun_file(target)], inputs=[init] if init else ())
     # torch (2-3 s to import on 2 cores) loads from here on, once the options above are checked
     from tron1cli.learn import tune_glibc_malloc
@@ -390,6 +396,12 @@ def train(
     except ValueError as e:
         fail(str(e), 2)
     cfg = replace(cfg, learner=replace(cfg.learner, **settings))
+    from tron1cli.train.runner import check_batch
+
+    try:
+        check_batch(cfg)
+    except ValueError as e:
+        fail(str(e), 2)
     n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
     if n_teacher >= cfg.env.num_envs and not cfg.env.perception:
         fail(
@@ -442,6 +454,11 @@ def _resume(
             save_every=save_every if _given(ctx, "save_every") else None,
             precision=precision,
             backend=backend,
+        )
+    if trainer.dropped_metrics_line is not None:
+        note(
+            f"{run_dir}/metrics.jsonl: dropped its cut last line {trainer.dropped_metrics_line} "
+            "(a run stopped while writing it)"
         )
     _run(trainer, run_dir, target, minutes, rerun_every, resumed=True)
 

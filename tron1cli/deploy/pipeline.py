@@ -178,7 +178,7 @@ class DeploySim:
         if cfg.depth_latency_ms < 0:
             raise UsageError(f"--depth-latency-ms must be >= 0, got {cfg.depth_latency_ms:g}")
         n_levels = base.terrain_cfg.num_levels
-        if not -n_levels <= cfg.level < n_levels:
+        if not (cfg.level == -1 or 0 <= cfg.level < n_levels):
             raise UsageError(f"--level {cfg.level} outside 0..{n_levels - 1} (or -1 for the hardest)")
         sim_dt, decimation = base.sim_dt, base.decimation
         if cfg.physics_hz is not None:
@@ -211,6 +211,7 @@ class DeploySim:
             sim_dt=sim_dt,
             decimation=decimation,
             terrain=cfg.terrain,
+            terrain_mix={},
             curriculum=False,
             depth_from=1,  # the env renders no depth itself: the depth thread does
             randomization=base.randomization if cfg.randomize else RandomizationConfig(),

@@ -42,7 +42,20 @@ class CommandSchedule:
     def from_file(cls, path: Path) -> CommandSchedule:
         """Read ``t_s,vx,vy,yaw`` lines; raises ValueError naming the file and line of a bad one."""
         rows: list[tuple[float, ...]] = []
-        for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        try:
+            text = Path(path).read_text()
+        except UnicodeDecodeError as e:
+            raise ValueError(
+                f"--cmd-file {path}: not a text file (byte {e.start} is not UTF-8); want CSV lines "
+                "t_s,vx,vy,yaw"
+            ) from None
+        except OSError as e:
+            raise ValueError(f"--cmd-file {path}: cannot read it ({e.strerror or e})") from None
+        if "\x00" in text:
+            raise ValueError(
+                f"--cmd-file {path}: not a text file (it holds NUL bytes); want CSV lines t_s,vx,vy,yaw"
+            )
+        for no, line in enumerate(text.splitlines(), start=1):
             s = line.strip()
             if not s or s.startswith("#"):
                 continue

@@ -74,7 +74,7 @@ class SimRobot:
         except ValueError as e:
             raise UsageError(str(e)) from None
         tcfg = EnvConfig().terrain_cfg
-        if not -tcfg.num_levels <= cfg.level < tcfg.num_levels:
+        if not (cfg.level == -1 or 0 <= cfg.level < tcfg.num_levels):
             raise UsageError(f"--level {cfg.level} outside 0..{tcfg.num_levels - 1} (or -1 for the hardest)")
         self.cfg, self.link = cfg, link
         bank = TerrainBank.from_name(cfg.terrain, tcfg, seed=cfg.seed)
@@ -319,4 +319,6 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def write_report(rep: dict, path: Path) -> None:
-    Path(path).write_text(json.dumps(rep) + "\n")
+    from tron1cli.fileio import write_file
+
+    write_file(Path(path), json.dumps(rep) + "\n")

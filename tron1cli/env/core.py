@@ -65,6 +65,9 @@ class Tron1Env:
     def __init__(
         self, cfg: EnvConfig, reward_cfg: RewardConfig | None = None, backend: str = "mujoco"
     ) -> None:
+        from tron1cli.memory import check_memory, env_bytes
+
+        check_memory(cfg.num_envs, env_bytes(cfg))  # before any per-env array is made
         self.cfg = cfg
         self.reward_cfg = reward_cfg or RewardConfig()
         self.n = cfg.num_envs
@@ -83,6 +86,7 @@ class Tron1Env:
         if self.model.nhfield or cfg.randomization.terms:
             # one world per env: its own tile and its own randomised parameters
             # (memory: envs x one tile, not envs x the terrain)
+            check_memory(self.n, env_bytes(cfg, self.model.nbuffer), "the envs and their worlds")
             models = [copy.copy(self.model) for _ in range(self.n)]
         else:
             models = [self.model] * self.n

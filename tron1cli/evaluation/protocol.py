@@ -93,8 +93,8 @@ def check_speed_form(dim: str, value: float | None = None) -> None:
 
 
 def check_level(level: int, num_levels: int) -> None:
-    """ValueError unless ``level`` names one of ``num_levels`` levels (negative: from the hardest)."""
-    if not -num_levels <= level < num_levels:
+    """ValueError unless ``level`` names one of ``num_levels`` levels, or is -1 (the hardest)."""
+    if not (level == -1 or 0 <= level < num_levels):
         raise ValueError(f"--level {level} outside 0..{num_levels - 1} (or -1 for the hardest)")
 
 
@@ -211,6 +211,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         num_envs=spec.num_envs,
         seed=spec.seed,
         terrain=spec.terrain,
+        terrain_mix={},  # every env on the terrain under test
         curriculum=False,
         depth_from=spec.num_envs if policy.actor == "teacher" else 0,  # a teacher needs no camera
         randomization=base.randomization if spec.randomize else RandomizationConfig(),

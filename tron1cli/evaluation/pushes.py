@@ -113,6 +113,13 @@ def run_push_test(
     """One batch of ``num_envs`` under ``proto``; ``stream`` (rerun) gets the first env whose push
     type is ``watch``; ``video`` (a :class:`tron1cli.viz.video.VideoRecorder`) gets one take of
     the first env of every push type, side by side; ``backend``: the physics engine."""
+    from types import SimpleNamespace
+
+    from tron1cli.memory import check_memory, env_bytes
+
+    # before the per-env push arrays below: an env count the machine cannot hold is refused at once
+    lean = SimpleNamespace(num_envs=num_envs, perception=policy.run_cfg.env.perception, depth_from=num_envs)
+    check_memory(num_envs, env_bytes(lean) + 13 * 8)
     dt = policy.run_cfg.env.policy_dt
     spec = EvalSpec(
         terrain=proto.terrain,

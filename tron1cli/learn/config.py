@@ -80,6 +80,17 @@ class ObsDims:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObsDims:
+        """The inverse of :meth:`to_dict`; ValueError naming a field of the wrong kind."""
+        import typing
+
+        from tron1cli.config.serde import check_value
+
+        if not isinstance(d, dict):
+            raise ValueError(f"observation dims should be an object, got {type(d).__name__}")
+        hints = typing.get_type_hints(cls)
+        for k, v in d.items():
+            if k in hints:
+                check_value(hints[k], v, f"observation dims.{k}")
         d = dict(d)
         if d.get("depth_hw") is not None:
             d["depth_hw"] = tuple(d["depth_hw"])
@@ -254,15 +265,10 @@ class LearnerConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> LearnerConfig:
-        tuples = {
-            "actor_hidden",
-            "critic_hidden",
-            "encoder_hidden",
-            "heightmap_encoder_hidden",
-            "decoder_hidden",
-            "cnn_channels",
-        }
-        return cls(**{k: (tuple(v) if k in tuples else v) for k, v in d.items()})
+        """The inverse of :meth:`to_dict`; ValueError naming a field of the wrong kind."""
+        from tron1cli.config.serde import from_plain
+
+        return from_plain(cls, d, "learner config")
 
 
 #: LearnerConfig fields that ``tron1 train`` sets through an option of their own

@@ -110,10 +110,6 @@ def from_metadata(props: Mapping[str, str], where: str) -> dict:
     return contract
 
 
-def _numbers(value) -> list:
-    return list(value) if isinstance(value, list | tuple) else [value]
-
-
 def _is_number(x) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
@@ -122,22 +118,79 @@ def _is_count(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool) and x >= 1
 
 
+def _kind(value) -> str:
+    """How a JSON value reads in an error message."""
+    from tron1cli.config.serde import _kind as kind
+
+    return kind(value)
+
+
+def _check_types(contract: Mapping, where: str) -> None:
+    """Refuse a contract field of the wrong JSON kind (a number where a list belongs, a list
+    where an object does), naming it: every reader of a contract relies on these forms."""
+
+    def bad(key: str, want: str, value) -> Tron1Error:
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+        return Tron1Error(f"{where}: contract field {key} should be {want}, got {_kind(value)} ({shown})")
+
+    def str_list(key: str, value) -> None:
+        if not isinstance(value, list) or not all(isinstance(x, str) for x in value):
+            raise bad(key, "a list of names", value)
+
+    if "source_checkpoint" in contract and not isinstance(contract["source_checkpoint"], str):
+        raise bad("source_checkpoint", "a string", contract["source_checkpoint"])
+    str_list("joint_names", contract["joint_names"])
+    for key in ("inputs", "outputs"):
+        if key in contract:
+            str_list(key, contract[key])
+    for key in ("obs_layout", "run_config"):
+        if not isinstance(contract[key], dict):
+            raise bad(key, "an object", contract[key])
+    layout = contract["obs_layout"]
+    if "sizes" in layout and not isinstance(layout["sizes"], dict):
+        raise bad("obs_layout.sizes", "an object", layout["sizes"])
+    if "gait_clock" in layout and not isinstance(layout["gait_clock"], bool):
+        raise bad("obs_layout.gait_clock", "true or false", layout["gait_clock"])
+    if "gait_clock" in contract:
+        gc = contract["gait_clock"]
+        if not isinstance(gc, dict):
+            raise bad("gait_clock", "an object", gc)
+        if "freq_hz" in gc and not (
+            isinstance(gc["freq_hz"], list) and all(_is_number(x) for x in gc["freq_hz"])
+        ):
+            raise bad("gait_clock.freq_hz", "a list of numbers", gc["freq_hz"])
+    depth = contract.get("depth")
+    if depth is not None:
+        if not isinstance(depth, dict):
+            raise bad("depth", "an object or null", depth)
+        for key in ("rows", "cols"):
+            if not _is_count(depth.get(key)):
+                raise bad(f"depth.{key}", "a positive integer", depth.get(key))
+        for key in ("range_m", "fov_deg"):
+            v = depth.get(key)
+            if not (isinstance(v, list) and len(v) == 2 and all(_is_number(x) and x > 0 for x in v)):
+                raise bad(f"depth.{key}", "a list of two positive numbers", v)
+
+
 def validate(contract: Mapping, where: str) -> None:
-    """Refuse (:class:`Tron1Error`) a contract whose fields cannot be meant: a gain, rate or
-    scale that is not a finite positive number, a count that is not a positive integer, a
-    history length or width that disagrees with the observation layout."""
+    """Refuse (:class:`Tron1Error`) a contract whose fields cannot be meant: a field of the wrong
+    JSON kind, a gain, rate or scale that is not a finite positive number, a count that is not a
+    positive integer, a history length or width that disagrees with the observation layout."""
+    _check_types(contract, where)
     positive = ("action_scale_rad", "kp_nm_per_rad", "kd_nm_s_per_rad", "torque_limit_nm")
     positive += ("sim_dt_s", "policy_hz", "depth_hz")
     for key in positive:
-        if key in contract:
-            vals = _numbers(contract[key])
-            if not vals or not all(_is_number(x) and x > 0 for x in vals):
-                raise Tron1Error(
-                    f"{where}: contract field {key} = {contract[key]!r} is not a finite positive number"
-                )
+        if key in contract and not (_is_number(contract[key]) and contract[key] > 0):
+            raise Tron1Error(
+                f"{where}: contract field {key} = {contract[key]!r} is not a finite positive number"
+            )
     if "default_pose_rad" in contract:
-        pose = _numbers(contract["default_pose_rad"])
-        if len(pose) != len(robot.JOINT_NAMES) or not all(_is_number(x) for x in pose):
+        pose = contract["default_pose_rad"]
+        if (
+            not isinstance(pose, list)
+            or len(pose) != len(robot.JOINT_NAMES)
+            or not all(map(_is_number, pose))
+        ):
             raise Tron1Error(
                 f"{where}: contract field default_pose_rad must hold {len(robot.JOINT_NAMES)} finite "
                 f"numbers, got {contract['default_pose_rad']!r}"

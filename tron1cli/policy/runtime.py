@@ -27,10 +27,10 @@ Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
     """(VisionCTS in eval mode, no gradients, RunConfig, the raw checkpoint) of a training checkpoint."""
     from tron1cli.learn import LearnerConfig, ObsDims, VisionCTS
-    from tron1cli.train.checkpoint import load_checkpoint
+    from tron1cli.train.checkpoint import load_training_checkpoint
     from tron1cli.train.runner import RunConfig
 
-    state = load_checkpoint(path)
+    state = load_training_checkpoint(path)
     try:
         run_cfg = RunConfig.from_dict(json.loads(state["config"]))
         sd = state["learner"]
@@ -38,7 +38,7 @@ def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
             ObsDims.from_dict(sd["dims"]), tuple(sd["groups"]), LearnerConfig.from_dict(sd["config"])
         )
         model.load_state_dict(sd["model"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as e:
         raise Tron1Error(f"{path}: checkpoint does not hold a usable policy ({_short(e)})") from e
     bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not torch.isfinite(v).all()]
     if bad:
@@ -95,7 +95,7 @@ class Policy:
 
     @property
     def depth_hw(self) -> tuple[int, int] | None:
-        hw = self.contract["obs_layout"]["depth_hw"]
+        hw = self.contract["obs_layout"].get("depth_hw")
         return None if hw is None else (int(hw[0]), int(hw[1]))
 
     def initial_hidden(self, batch: int) -> np.ndarray:
@@ -222,7 +222,10 @@ def load_policy(path: Path | str, actor: str = "student") -> Policy:
         raise ValueError(f"unknown actor '{actor}'; choose from {', '.join(pc.ACTORS)}")
     if not path.is_file():
         raise Tron1Error(f"policy not found: {path}")
-    if path.suffix == ".onnx":
+    from tron1cli.train.checkpoint import onnx_source
+
+    # by its content: an ONNX export named .pt is loaded as what it is
+    if path.suffix == ".onnx" or onnx_source(path) is not None:
         if actor == "teacher":
             raise Tron1Error(
                 f"{path}: an ONNX export holds the student only; the teacher needs the checkpoint"

@@ -2,12 +2,46 @@
 
 from __future__ import annotations
 
+import json
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from tron1cli.fileio import write_file
+
 GROUPS = ("teacher", "student")
+
+
+def trim_metrics(path: Path, iteration: int) -> int | None:
+    """Make ``metrics.jsonl`` at ``path`` fit a run that goes on after ``iteration``: drop the
+    lines of later iterations (they will be redone) and a cut last line (a run killed, or a disk
+    that filled, while writing it: appended to, it would make one corrupt line of two), and end
+    the file with a newline. Other unreadable lines are kept rather than guessed at. Returns the
+    number of the cut line it dropped, if any."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    data = path.read_bytes()
+    lines = data.decode(errors="surrogateescape").splitlines(keepends=True)
+    keep, cut = [], None
+    for k, line in enumerate(lines):
+        try:
+            row = json.loads(line)
+            later = int(row["iteration"]) > iteration
+        except (ValueError, KeyError, TypeError):
+            if k == len(lines) - 1:
+                cut = k + 1
+                continue
+            keep.append(line)  # a corrupt line before the last: kept rather than guess
+            continue
+        if not later:
+            keep.append(line if line.endswith("\n") else line + "\n")
+    text = "".join(keep)
+    if text.encode(errors="surrogateescape") != data:
+        write_file(path, text.encode(errors="surrogateescape"))
+    return cut
 
 
 class EpisodeStats:

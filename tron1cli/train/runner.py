@@ -5,6 +5,7 @@ What a run directory holds: :mod:`tron1cli.train.layout`.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import time
@@ -21,13 +22,13 @@ from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.rewards import RewardConfig, make_reward_config, with_ramps, with_settings, with_weights
-from tron1cli.errors import Tron1Error, UsageError
+from tron1cli.errors import Tron1Error, UsageError, describe
 from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
 from tron1cli.learn.warm_start import WarmStart, warm_start
-from tron1cli.train.checkpoint import load_checkpoint, save_checkpoint
-from tron1cli.train.layout import CONFIG, METRICS, checkpoint_dir, latest_checkpoint
-from tron1cli.train.metrics import EpisodeStats
+from tron1cli.train.checkpoint import load_training_checkpoint, nonfinite_weights, save_checkpoint
+from tron1cli.train.layout import CONFIG, METRICS, RunLock, checkpoint_dir, latest_checkpoint
+from tron1cli.train.metrics import EpisodeStats, trim_metrics
 
 
 @dataclass(frozen=True)
@@ -78,9 +79,23 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
+        """The inverse of :meth:`to_dict`; ValueError, one line naming the field, for anything
+        else (a field of the wrong kind, a value the configuration refuses)."""
+        if not isinstance(d, dict):
+            raise ValueError(f"the run configuration should be an object, got {type(d).__name__}")
         reward = d.get("reward")
-        cfg = from_plain(cls, {k: v for k, v in d.items() if k not in ("reward", "tron1cli_version")})
-        return replace(cfg, saved_reward=RewardConfig.from_dict(reward)) if reward else cfg
+        try:
+            plain = {k: v for k, v in d.items() if k not in ("reward", "tron1cli_version")}
+            cfg = from_plain(cls, plain, "run_config")
+            if reward is None:
+                return cfg
+            if not isinstance(reward, dict) or not isinstance(reward.get("terms"), dict):
+                raise ValueError("the run configuration's reward should be an object with terms")
+            if not all(isinstance(t, dict) for t in reward["terms"].values()):
+                raise ValueError("the run configuration's reward terms should be objects")
+            return replace(cfg, saved_reward=RewardConfig.from_dict(reward))
+        except (TypeError, KeyError, AttributeError) as e:
+            raise ValueError(f"run configuration: {describe(e)}") from None
 
 
 def run_config(
@@ -139,6 +154,39 @@ def run_config(
     )
 
 
+def check_batch(cfg: RunConfig) -> None:
+    """ValueError unless every PPO minibatch of ``cfg`` holds samples: the envs times the steps
+    per env must be at least the minibatches (an empty one makes every loss NaN)."""
+    n, steps = cfg.env.num_envs, cfg.learner.num_steps_per_env
+    mb = cfg.learner.num_minibatches
+    if n * steps < mb:
+        raise ValueError(
+            f"--envs {n} x --steps-per-env {steps} gives {n * steps} samples an iteration, fewer than "
+            f"the {mb} minibatches of an update (--learner num_minibatches={mb}); take more envs or "
+            "steps, or fewer minibatches"
+        )
+
+
+def rollout_memory(cfg: RunConfig) -> int:
+    """Bytes a run's env and rollout storage need at least per env (:mod:`tron1cli.memory`)."""
+    from tron1cli.memory import env_bytes, rollout_bytes
+    from tron1cli.policy.contract import layout_of
+
+    sizes = layout_of(cfg).sizes()
+    return env_bytes(cfg.env) + rollout_bytes(
+        sizes, cfg.learner.num_steps_per_env, groups=len(cfg.reward.groups)
+    )
+
+
+def _why(e: OSError) -> str:
+    """An OSError of a write as a few words ("no space left on the device", ...)."""
+    if e.errno == errno.ENOSPC:
+        return "no space left on the device"
+    if e.errno == errno.EDQUOT:
+        return "the disk quota is used up"
+    return e.strerror or describe(e)
+
+
 def obs_dims(env: Tron1Env) -> ObsDims:
     sizes = env.layout.sizes()
     return ObsDims(
@@ -187,13 +235,39 @@ class Trainer:
         self.ckpt_dir = checkpoint_dir(self.run_dir)
         self.latest = latest_checkpoint(self.run_dir)
         self.metrics_path = self.run_dir / METRICS
-        state = None
         if init is not None and resume:
             raise UsageError("--init starts a new run from other weights; --resume continues this one")
-        source = load_checkpoint(init) if init is not None else None
+        made = not self.run_dir.exists()
+        self.lock = RunLock(self.run_dir).acquire()  # one training process per run directory
+        try:
+            self._setup(cfg, resume, iterations, device, threads, init, save_every, precision, backend)
+        except BaseException:
+            if hasattr(self, "env"):
+                self.env.close()
+            self.lock.release()
+            if made:  # a run refused before it began leaves no empty folder behind
+                try:
+                    self.run_dir.rmdir()
+                except OSError:
+                    pass
+            raise
+
+    def _setup(self, cfg, resume, iterations, device, threads, init, save_every, precision, backend) -> None:
+        state = None
+        source = load_training_checkpoint(init) if init is not None else None
+        if source is not None:
+            bad = nonfinite_weights(source["learner"]["model"])
+            if bad:
+                raise Tron1Error(
+                    f"--init {init}: the policy's weights are not finite (NaN or inf in {bad[0]}); "
+                    "start from an earlier checkpoint of that run"
+                )
         if resume:
-            state = load_checkpoint(self.latest)
-            cfg = RunConfig.from_dict(json.loads(state["config"]))
+            state = load_training_checkpoint(self.latest)
+            try:
+                cfg = RunConfig.from_dict(json.loads(state["config"]))
+            except ValueError as e:
+                raise Tron1Error(f"{self.latest}: the run configuration is unreadable ({e})") from None
             if iterations is not None:
                 cfg = replace(cfg, iterations=iterations)
             if threads is not None:  # the machine may differ from the one the run started on
@@ -207,6 +281,9 @@ class Trainer:
         elif self.latest.exists():
             raise UsageError(f"{self.run_dir} already holds a run: pass --resume to continue it")
         self.cfg = cfg
+        from tron1cli.memory import check_memory
+
+        check_memory(cfg.env.num_envs, rollout_memory(cfg), "the envs and their rollout storage")
         # a save killed midway leaves its temp file; nothing else would ever remove it
         clean_stale_temps(self.ckpt_dir)
         clean_stale_temps(self.run_dir, f".{CONFIG}")
@@ -240,14 +317,20 @@ class Trainer:
                 origin += ", terrain levels carried"
             self.cfg = cfg = replace(cfg, init_from=origin)
         if state is not None:
-            self.learner.load_state_dict(state["learner"])
+            try:
+                self.learner.load_state_dict(state["learner"])
+            except (KeyError, TypeError, ValueError, RuntimeError) as e:
+                raise Tron1Error(
+                    f"{self.latest}: its learner state does not fit the run ({describe(e)})"
+                ) from e
             self._restore_levels(state)
             self.iteration = int(state["iteration"])
             self.env_steps = int(state["env_steps"])
             self.wall_s = float(state.get("wall_s", 0.0))
-            self._trim_metrics()
         #: the iteration of the checkpoint on disk (None before the first save)
         self.saved_iteration: int | None = self.iteration if state is not None else None
+        #: the number of a cut last line of metrics.jsonl dropped at the start (None: none was)
+        self.dropped_metrics_line = self._trim_metrics()
         self.stats = EpisodeStats(step_s=self.env.policy_dt)
         if state is not None and "episode_stats" in state:  # older checkpoints: start empty
             self.stats.load_state_dict(state["episode_stats"])
@@ -259,7 +342,9 @@ class Trainer:
         if not self.cfg.env.curriculum:
             return False
         mine = self.cfg.to_dict()["env"]
-        theirs = json.loads(source["config"])["env"]
+        theirs = json.loads(source["config"]).get("env")
+        if not isinstance(theirs, dict):
+            return False
         keys = ("terrain", "terrain_cfg", "num_envs", "seed", "terrain_mix")
         if any(theirs.get(k, {} if k == "terrain_mix" else None) != mine[k] for k in keys):
             return False
@@ -305,22 +390,23 @@ class Trainer:
             more = f" and {len(names) - 1} more" if len(names) > 1 else ""
             self._stop_nonfinite(f"non-finite values in {names[0]}{more}")
 
-    def _trim_metrics(self) -> None:
-        """Drop metrics lines past the checkpoint resumed from (iterations that will be redone)."""
-        if not self.metrics_path.is_file():
-            return
-        lines = self.metrics_path.read_text().splitlines(keepends=True)
-        keep = []
-        for line in lines:
-            try:
-                if int(json.loads(line)["iteration"]) > self.iteration:
-                    continue
-            except (ValueError, KeyError, TypeError):
-                pass  # a line cut by a kill: keep what cannot be read rather than guess
-            keep.append(line)
-        if len(keep) != len(lines):
-            data = "".join(keep).encode()
-            atomic_write(self.metrics_path, lambda f: f.write(data))
+    def _trim_metrics(self) -> int | None:
+        """Drop metrics lines past the checkpoint resumed from (iterations that will be redone; a
+        new run: all) and a cut last line (:func:`tron1cli.train.metrics.trim_metrics`)."""
+        try:
+            return trim_metrics(self.metrics_path, self.iteration)
+        except OSError as e:
+            raise self._write_failed(e, self.metrics_path) from e
+
+    def _write_failed(self, e: OSError, path: Path) -> Tron1Error:
+        """One line for a write that failed (a disk that filled): what failed and what was kept."""
+        kept = (
+            f"{self.latest} (iteration {self.saved_iteration}) is the last good checkpoint; --resume "
+            "continues from it once there is room"
+            if self.saved_iteration is not None
+            else "no checkpoint had been saved yet"
+        )
+        return Tron1Error(f"cannot write {path}: {_why(e)}; {kept}")
 
     def save(self) -> Path:
         names = self.nonfinite()
@@ -339,15 +425,25 @@ class Trainer:
             "curriculum": {k: torch.from_numpy(v) for k, v in self.env.curriculum_state().items()},
             "episode_stats": self.stats.state_dict(),
         }
-        save_checkpoint(self.latest, payload)
-        if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
-            save_checkpoint(self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt", payload)
+        try:  # a failed save (a full disk) leaves the checkpoint it would replace as it was
+            save_checkpoint(self.latest, payload)
+        except OSError as e:
+            raise self._write_failed(e, self.latest) from e
         self.saved_iteration = self.iteration
+        if self.iteration % self.cfg.save_every == 0 or self.iteration == self.cfg.iterations:
+            path = self.ckpt_dir / f"ckpt_{self.iteration:05d}.pt"
+            try:
+                save_checkpoint(path, payload)
+            except OSError as e:
+                raise self._write_failed(e, path) from e
         return self.latest
 
     def _write_config(self) -> None:
         data = json.dumps(self.cfg.to_dict(), indent=2).encode()
-        atomic_write(self.run_dir / CONFIG, lambda f: f.write(data), fsync=False)
+        try:
+            atomic_write(self.run_dir / CONFIG, lambda f: f.write(data), fsync=False)
+        except OSError as e:
+            raise self._write_failed(e, self.run_dir / CONFIG) from e
 
     # -- the loop ---------------------------------------------------------------------------
     def iterate(
@@ -434,18 +530,24 @@ class Trainer:
             nonlocal following
             following &= not res.done[watched]
 
-        with open(self.metrics_path, "a") as mlog:
+        try:  # unbuffered: a failed write is seen here, not again when the file closes
+            mlog = open(self.metrics_path, "ab", buffering=0)  # noqa: SIM115
+        except OSError as e:
+            raise self._write_failed(e, self.metrics_path) from e
+        with mlog:
             while self.iteration < self.cfg.iterations:
                 following |= stream is not None and self.iteration % stream_every == 0
                 hooks = (log, unfollow) if following else (None, None)
                 obs, m = self.iterate(obs, *hooks)
-                mlog.write(
-                    json.dumps(
-                        {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in m.items()}
-                    )
-                    + "\n"
+                line = json.dumps(
+                    {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in m.items()}
                 )
-                mlog.flush()
+                try:  # a line cut here (a full disk) is dropped by the next start (trim_metrics)
+                    view = memoryview((line + "\n").encode())
+                    while view:
+                        view = view[mlog.write(view) :]
+                except OSError as e:
+                    raise self._write_failed(e, self.metrics_path) from e
                 if self.iteration % self.cfg.save_every == 0:
                     self.save()
                 last = m
@@ -457,7 +559,10 @@ class Trainer:
         return last
 
     def close(self) -> None:
-        self.env.close()
+        try:
+            self.env.close()
+        finally:
+            self.lock.release()
 
 
 class NonFiniteTraining(Tron1Error):

@@ -7,6 +7,7 @@ A campaign is one or more run directories in order, each phase started with ``tr
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from tron1cli.train.layout import METRICS
@@ -26,13 +27,14 @@ TABLE_COLUMNS: dict[str, tuple[tuple[str, ...], int]] = {
 }
 
 
-def read_metrics(run_dir: Path) -> list[dict]:
+def read_metrics(run_dir: Path, on_skip: Callable[[str], None] | None = None) -> list[dict]:
     """The per-iteration metrics of a run directory (``metrics.jsonl``). A cut-off last line (a
-    run killed while writing it) is left out; ValueError for a missing file or a corrupt line."""
+    run killed while writing it) is left out, and ``on_skip`` told so in one line; ValueError for
+    a missing file or a corrupt line elsewhere."""
     path = Path(run_dir) / METRICS
     if not path.is_file():
         raise ValueError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
-    lines = path.read_text().splitlines()
+    lines = path.read_bytes().decode(errors="replace").splitlines()
     rows = []
     for k, line in enumerate(lines):
         if not line.strip():
@@ -41,6 +43,8 @@ def read_metrics(run_dir: Path) -> list[dict]:
             row = json.loads(line)
         except json.JSONDecodeError:
             if k == len(lines) - 1:
+                if on_skip is not None:
+                    on_skip(f"{path} line {k + 1} is cut off (a run stopped while writing it); left out")
                 break
             raise ValueError(f"{path} line {k + 1} is not JSON") from None
         if not isinstance(row, dict) or not {"wall_s", "env_steps"} <= row.keys():
@@ -49,13 +53,14 @@ def read_metrics(run_dir: Path) -> list[dict]:
     return rows
 
 
-def campaign_phases(run_dirs: list[Path]) -> list[dict]:
+def campaign_phases(run_dirs: list[Path], on_skip: Callable[[str], None] | None = None) -> list[dict]:
     """The metrics of a campaign's phases in order as one series: ``wall_s`` and ``env_steps``
-    made cumulative and each row tagged with its ``phase`` index."""
+    made cumulative and each row tagged with its ``phase`` index (``on_skip``: told of a line
+    left out, :func:`read_metrics`)."""
     out: list[dict] = []
     wall0 = steps0 = 0.0
     for i, run_dir in enumerate(run_dirs):
-        rows = read_metrics(run_dir)
+        rows = read_metrics(run_dir, on_skip)
         for m in rows:
             out.append(m | {"wall_s": m["wall_s"] + wall0, "env_steps": m["env_steps"] + steps0, "phase": i})
         if rows:

@@ -118,11 +118,16 @@ def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20
 
 
 def _save(fig, out_png: Path) -> Path:
+    from tron1cli.fileio import atomic_write
+
     out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
+    try:  # whole or not at all: a full disk keeps the earlier figure
+        atomic_write(
+            out_png, lambda f: fig.savefig(f, dpi=110, format=out_png.suffix[1:] or "png"), fsync=False
+        )
+    finally:
+        plt.close(fig)
     return out_png
 
 

@@ -334,7 +334,10 @@ class VideoRecorder:
         backend, ms per frame for rendering and for encoding). Raises :class:`VideoError`."""
         if not self.frames:
             raise VideoError("--video: nothing was recorded")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise VideoError(f"--video {self.path}: cannot make its folder ({e.strerror or e})") from e
         user_set = bool(os.environ.get("MUJOCO_GL", "").strip())
         backends = backends or gl_backends()
         tried: list[str] = []
@@ -360,7 +363,7 @@ class VideoRecorder:
                     proc.returncode < 0 and GL_READY not in (proc.stdout or "")
                 )
                 if not gl_failed:
-                    raise VideoError(f"--video: rendering failed (MUJOCO_GL={backend}): {last}")
+                    raise VideoError(f"--video {self.path}: rendering failed (MUJOCO_GL={backend}): {last}")
                 tried.append(f"MUJOCO_GL={backend}: {last}")
         raise VideoError(no_backend_message(tried, user_set, backends[-1]), backend_missing=True)
 
