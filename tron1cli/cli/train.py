@@ -10,7 +10,14 @@ from pathlib import Path
 from types import MappingProxyType
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from tron1cli.cli.common import (
@@ -666,6 +673,8 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         BarColumn(bar_width=8),
         TextColumn("{task.fields[figures]}"),
         TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
         console=err,
         disable=not err.is_terminal,  # a log file gets the plain lines of show() instead
     )
