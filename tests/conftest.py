@@ -11,14 +11,15 @@ from pathlib import Path
 import pytest
 
 
-def tron1(*args: str) -> subprocess.CompletedProcess:
-    """Run the ``tron1`` CLI in a subprocess (one torch thread), capturing its output."""
+def tron1(*args: str, env: dict[str, str] | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    """Run the ``tron1`` CLI in a subprocess (one torch thread), capturing its output; ``env``: more
+    environment variables; ``timeout`` in s."""
     return subprocess.run(
         [sys.executable, "-m", "tron1cli", *args],
         capture_output=True,
         text=True,
-        timeout=600,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+        timeout=timeout,
+        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin", **(env or {})},
     )
 
 

@@ -498,12 +498,6 @@ def test_mujoco_warnings_are_one_line_on_stderr_and_no_log_file(tmp_path):
 
 
 def test_unknown_mujoco_gl_is_one_line_not_a_traceback():
-    r = subprocess.run(
-        [sys.executable, "-m", "tron1cli", "--version"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin", "MUJOCO_GL": "bogus"},
-    )
+    r = tron1("--version", env={"MUJOCO_GL": "bogus"}, timeout=120)
     lines = [x for x in r.stderr.splitlines() if x.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "MUJOCO_GL: bogus" in lines[0], r.stderr

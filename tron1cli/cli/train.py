@@ -43,7 +43,14 @@ from tron1cli.cli.common import (
 )
 from tron1cli.config.presets import FLAT_REWARD_RAMPS, PRESETS
 from tron1cli.env.randomization import ALL_TERMS
-from tron1cli.env.rewards import REWARD_SETTINGS
+from tron1cli.env.rewards import (
+    ABLATIONS,
+    REWARD_SETTINGS,
+    make_reward_config,
+    with_ramps,
+    with_settings,
+    with_weights,
+)
 
 
 def _ramps_text(ramps) -> str:
@@ -239,7 +246,6 @@ def train(
     """Train a policy; Ctrl-C saves a checkpoint, --resume continues a run."""
     from tron1cli.config.presets import for_terrain, make_preset
     from tron1cli.env.randomization import PushConfig, RandomizationConfig
-    from tron1cli.env.rewards import ABLATIONS, make_reward_config, with_ramps, with_settings, with_weights
 
     given = [n for n in PRESET_OPTIONS if _given(ctx, n)]
     if resume and preset is not None:
