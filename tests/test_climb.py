@@ -11,7 +11,7 @@ import pytest
 from tests.conftest import tron1
 from tests.test_bad_input import one_error_line
 from tron1cli.config import EnvConfig
-from tron1cli.env.curriculum import TerrainCurriculum, deal_types
+from tron1cli.env.curriculum import RULES, EpisodeEnds, TerrainCurriculum, deal_types
 from tron1cli.env.rewards import RewardConfig, swing_apex_m, with_settings
 from tron1cli.env.terrain import TerrainBank, TerrainConfig, riser_m
 from tron1cli.evaluation.climb import risers_climbed
@@ -35,6 +35,48 @@ def test_curriculum_deals_types_by_the_mix():
     cur = TerrainCurriculum(bank, 8, np.random.default_rng(0), max_init_level=2, shares=np.array([1.0, 3.0]))
     assert cur.kind.tolist().count(1) == 6
     assert np.all(bank.kind[cur.tile] == cur.kind) and np.all(bank.level[cur.tile] == cur.level)
+
+
+def _three_ends() -> EpisodeEnds:
+    """Env 0 walked far, env 1 stood and survived, env 2 fell on the spot (10 m commanded each)."""
+    return EpisodeEnds(
+        distance=np.array([4.0, 0.1, 0.1]), commanded=np.full(3, 10.0), fell=np.array([False, False, True])
+    )
+
+
+@pytest.mark.parametrize("rule,levels", [("distance", [6, 4, 4]), ("falls", [6, 5, 4])])
+def test_curriculum_rules_move_levels(rule, levels):
+    bank = TerrainBank(("stairs_up",))
+    cur = TerrainCurriculum(bank, 3, np.random.default_rng(0), rule=rule)
+    cur.level[:] = 5
+    cur.tile[:] = bank.tile_index(cur.kind, cur.level, np.zeros(3, int))
+    cur.update(np.arange(3), _three_ends())
+    assert cur.level.tolist() == levels
+    assert (bank.level[cur.tile] == cur.level).all()
+
+
+def test_the_uniform_rule_draws_every_level_whatever_the_episode():
+    bank = TerrainBank(("stairs_up",), TerrainConfig(tile_size_m=2.0, num_levels=4, variants_per_level=1))
+    drawn = []
+    for seed in (1, 1, 2):
+        cur = TerrainCurriculum(bank, 3, np.random.default_rng(seed), rule="uniform")
+        for _ in range(40):
+            cur.update(np.arange(3), _three_ends())
+            assert (bank.level[cur.tile] == cur.level).all()
+        drawn.append(cur.level.tolist())
+        if seed == 2:
+            seen = set()
+            for _ in range(40):
+                cur.update(np.arange(3), _three_ends())
+                seen |= set(cur.level.tolist())
+            assert seen == {0, 1, 2, 3}
+    assert drawn[0] == drawn[1]  # the same seed draws the same levels
+
+
+def test_an_unknown_curriculum_rule_is_refused():
+    with pytest.raises(ValueError, match="rule 'lava'; choose from distance, falls, uniform"):
+        EnvConfig(terrain="stairs", curriculum_rule="lava")
+    assert set(RULES) == {"distance", "falls", "uniform"}
 
 
 @pytest.mark.parametrize(
@@ -165,6 +207,9 @@ def test_probe_options_refused(tiny_ckpt_vision, args, text):
         (["--terrain", "mixed", "--terrain-mix", "stairs_up"], "--terrain-mix wants TYPE=NUMBER pairs"),
         (["--terrain", "stairs", "--init-level", "10"], "max_init_level must lie in 0..9"),
         (["--terrain", "stairs", "--reward-settings", "apex=1"], "unknown reward setting 'apex'"),
+        (["--terrain", "stairs", "--curriculum-rule", "lava"], "unknown curriculum rule 'lava'"),
+        (["--terrain", "stairs", "--init-std", "0.4"], "--init-std sets the action std over --init's"),
+        (["--terrain", "stairs", "--init-std", "0"], "Invalid value for '--init-std'"),
     ],
 )
 def test_climb_training_options_refused(tmp_path, args, text):

@@ -5,11 +5,10 @@ import pytest
 
 from tron1cli.config import EnvConfig, GaitConfig, NoiseConfig
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.curriculum import TerrainCurriculum
 from tron1cli.env.math3d import yaw_of
 from tron1cli.env.randomization import PushConfig, RandomizationConfig, damping_ratio_for_restitution
 from tron1cli.env.sensors import render_depth
-from tron1cli.env.terrain import TERRAIN_GROUPS, TerrainBank
+from tron1cli.env.terrain import TERRAIN_GROUPS
 
 FULL = dict(perception=True, randomization=RandomizationConfig.table_iii(), pushes=PushConfig.moderate())
 
@@ -124,18 +123,6 @@ def test_pushes_are_in_range_and_in_the_teacher_observation():
 
 def test_extreme_preset():
     assert PushConfig.extreme().force_n == (400.0, 400.0, 400.0) and PushConfig.extreme().torque_nm[0] == 20.0
-
-
-def test_curriculum_moves_up_and_down():
-    bank = TerrainBank(("stairs_up",))
-    cur = TerrainCurriculum(bank, 3, np.random.default_rng(0), max_init_level=0)
-    cur.level[:] = 5
-    changed = cur.update(
-        np.arange(3), distance=np.array([4.0, 0.1, 1.0]), commanded=np.array([1.0, 5.0, 1.0])
-    )
-    assert cur.level.tolist() == [6, 4, 5] and sorted(changed.tolist()) == [0, 1]
-    moved = np.array([0, 1])
-    assert (bank.level[cur.tile[moved]] == cur.level[moved]).all()
 
 
 def test_a_staggered_first_episode_moves_no_level_and_reports_its_true_length():

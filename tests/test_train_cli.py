@@ -1,6 +1,7 @@
 """``tron1 train`` through the CLI: run directory, checkpoints, resume, determinism, bad input."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -325,6 +326,12 @@ def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
         assert np.array_equal(same.env.curriculum.tile, cur.tile)
     finally:
         same.close()
+    std = Trainer(tmp_path / "s", replace(run_config(preset, nthread=1), init_action_std=0.4), init=ckpt)
+    try:  # --init-std: the source's weights, a fresh action std
+        assert std.levels_carried and ", action std set to 0.4" in std.cfg.init_from
+        assert torch.allclose(std.learner.model.log_std, torch.full((6,), math.log(0.4)))
+    finally:
+        std.close()
     for other in (replace(preset, terrain="slopes"), replace(preset, num_envs=16)):
         run_dir = tmp_path / f"{other.terrain}{other.num_envs}"
         fresh = Trainer(run_dir, run_config(other, nthread=1), init=ckpt)

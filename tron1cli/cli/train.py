@@ -79,6 +79,7 @@ PRESET_OPTIONS = (
     "ablation",
     "terrain_mix",
     "init_level",
+    "curriculum_rule",
 )
 
 
@@ -128,6 +129,15 @@ def train(
         "--init",
         help="Start a new run from this checkpoint's weights wherever the shapes agree (a blind "
         "policy into a perceptive run: the new inputs' weights start at zero).",
+        show_default=False,
+    ),
+    init_std: float | None = typer.Option(
+        None,
+        "--init-std",
+        callback=finite,
+        min=1e-3,
+        help="With --init: start the policy's action std (every joint, action units) here instead "
+        "of the checkpoint's, to explore again.",
         show_default=False,
     ),
     teacher_ratio: float = typer.Option(
@@ -236,6 +246,13 @@ def train(
     init_level: int = typer.Option(
         0, "--init-level", min=0, help="Envs start on terrain levels 0..LEVEL (9: any level)."
     ),
+    curriculum_rule: str = typer.Option(
+        "distance",
+        "--curriculum-rule",
+        help="How terrain levels move at episode ends: distance (up after walking far, down after "
+        "walking under half the commanded distance), falls (down only after a fall) or uniform "
+        "(every episode on a random level).",
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -252,6 +269,12 @@ def train(
         fail("--preset starts a new run; --resume continues with the run's own configuration", 2)
     if init is not None and resume:
         fail("--init starts a new run from other weights; --resume continues this one", 2)
+    if init_std is not None and init is None:
+        fail(
+            "--init-std sets the action std over --init's weights; a fresh run takes "
+            "--learner init_noise_std=X",
+            2,
+        )
     if resume:
         _resume(
             ctx,
@@ -397,6 +420,7 @@ def train(
                 else base.terrain_mix
             ),
             init_level=init_level if "init_level" in given else base.init_level,
+            curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
         )
         cfg = run_config(
             chosen,
@@ -408,7 +432,7 @@ def train(
         )
     except ValueError as e:
         fail(str(e), 2)
-    cfg = replace(cfg, learner=replace(cfg.learner, **settings))
+    cfg = replace(cfg, learner=replace(cfg.learner, **settings), init_action_std=init_std)
     from tron1cli.train.runner import check_batch
 
     try:
@@ -502,6 +526,7 @@ def _saved_values(cfg) -> dict:
         "seed": e.seed,
         "terrain_mix": dict(e.terrain_mix),
         "init_level": e.max_init_level,
+        "curriculum_rule": e.curriculum_rule,
     }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, replace
 
+from tron1cli.env.curriculum import RULES as CURRICULUM_RULES
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TerrainConfig, resolve_terrain
 
@@ -133,7 +134,8 @@ class EnvConfig:
     policy step (policy dt = sim_dt * decimation); history_len: past student observations o_t
     stacked into o^H_t; nthread: physics threads; seed: master seed of every random stream;
     terrain_mix: terrain type -> share of the envs (types of ``terrain`` left out get none; empty:
-    equal shares); max_init_level: envs start on levels 0..max_init_level.
+    equal shares); max_init_level: envs start on levels 0..max_init_level; curriculum_rule: how
+    levels move (tron1cli.env.curriculum.RULES: distance, falls, uniform).
     """
 
     num_envs: int = 1024
@@ -147,6 +149,7 @@ class EnvConfig:
     curriculum: bool = True
     max_init_level: int = 0
     terrain_mix: dict[str, float] = field(default_factory=dict)
+    curriculum_rule: str = "distance"
     perception: bool = False
     depth_hz: float = 30.0
     depth_from: int = 0
@@ -173,6 +176,10 @@ class EnvConfig:
             raise ValueError(f"max_init_level must lie in 0..{self.terrain_cfg.num_levels - 1}")
         if self.terrain_mix:
             self.type_shares()
+        if self.curriculum_rule not in CURRICULUM_RULES:
+            raise ValueError(
+                f"unknown curriculum rule '{self.curriculum_rule}'; choose from {', '.join(CURRICULUM_RULES)}"
+            )
 
     def type_shares(self) -> list[float] | None:
         """Share of the envs per type of ``terrain`` (in bank order) from ``terrain_mix``, or None

@@ -79,7 +79,7 @@ class TrainPreset:
     reward_settings: RewardConfig number -> value (``z_c``, ``gait_clearance_top_m``, ...);
     perception: heightmap and depth; randomization: Table III terms; pushes: random pushes;
     terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
-    on terrain levels 0..init_level.
+    on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform).
     """
 
     name: str
@@ -103,6 +103,7 @@ class TrainPreset:
     ablation: str = "none"
     terrain_mix: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     init_level: int = 0
+    curriculum_rule: str = "distance"
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:

@@ -15,7 +15,7 @@ import numpy as np
 from tron1cli.config.env import EnvConfig
 from tron1cli.env import robot, sensors, terminations
 from tron1cli.env.commands import Commands
-from tron1cli.env.curriculum import TerrainCurriculum
+from tron1cli.env.curriculum import EpisodeEnds, TerrainCurriculum
 from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
 from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
@@ -80,7 +80,13 @@ class Tron1Env:
         self.rng = np.random.default_rng(cfg.seed)
         self.bank = TerrainBank.from_name(cfg.terrain, cfg.terrain_cfg, seed=cfg.seed)
         self.curriculum = TerrainCurriculum(
-            self.bank, self.n, self.rng, cfg.max_init_level, enabled=cfg.curriculum, shares=cfg.type_shares()
+            self.bank,
+            self.n,
+            self.rng,
+            cfg.max_init_level,
+            enabled=cfg.curriculum,
+            shares=cfg.type_shares(),
+            rule=cfg.curriculum_rule,
         )
         self.model = build_model(cfg.sim_dt, self.bank)
         if self.model.nhfield or cfg.randomization.terms:
@@ -252,7 +258,8 @@ class Tron1Env:
             full = ~episode["staggered"]  # a cut-short first episode would read as a slow walker
             judged = ids[full]
             commanded = np.linalg.norm(self.commands.value[judged, :2], axis=1) * episode["length_s"][full]
-            changed = self.curriculum.update(judged, np.linalg.norm(xy[judged], axis=1), commanded)
+            ends = EpisodeEnds(np.linalg.norm(xy[judged], axis=1), commanded, term.failed[judged])
+            changed = self.curriculum.update(judged, ends)
             self._apply_tiles(changed)
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))

@@ -1,13 +1,21 @@
-"""Terrain curriculum: envs move up a difficulty level after walking far, down after not.
+"""Terrain curriculum: which difficulty level each env walks, moved at the end of its episodes.
 
-As in the legged-robot literature (Rudin et al., "learning to walk in minutes"): at the end of an
-episode an env that walked farther than ``up_distance`` from its spawn point (the tile centre)
-moves up one level; one that walked less than ``down_share`` of the distance its commands asked
-for moves down one. Envs that pass the top level stay there. Each env keeps its terrain type,
-assigned round-robin over the bank's types, and draws a new variant tile at every change.
+Each env keeps its terrain type (dealt over the bank's types by their shares) and draws a new
+variant tile whenever its level changes. How the level moves is the rule (:data:`RULES`):
+
+- ``distance`` (the legged-robot literature's, Rudin et al.): an env that walked farther than
+  ``up_distance`` from its spawn point (the tile centre) moves up one level; one that walked less
+  than ``down_share`` of the distance its commands asked for moves down one.
+- ``falls``: up as ``distance``; down only after a fall, so a slow survivor keeps its level.
+- ``uniform``: no curriculum; every episode draws its level uniformly from all levels.
+
+Levels stay within 0..num_levels - 1.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,13 +38,47 @@ def deal_types(num_envs: int, shares: np.ndarray) -> np.ndarray:
     return kind
 
 
+@dataclass(frozen=True)
+class EpisodeEnds:
+    """What the rules see of the episodes that ended, (k,) each: distance walked from the spawn
+    point and distance commanded (m), and whether the episode ended in a fall."""
+
+    distance: np.ndarray
+    commanded: np.ndarray
+    fell: np.ndarray
+
+
+def _distance(cur: TerrainCurriculum, level: np.ndarray, e: EpisodeEnds) -> np.ndarray:
+    up = e.distance > cur.up_distance
+    down = (e.distance < cur.down_share * e.commanded) & ~up
+    return level + up.astype(int) - down.astype(int)
+
+
+def _falls(cur: TerrainCurriculum, level: np.ndarray, e: EpisodeEnds) -> np.ndarray:
+    up = e.distance > cur.up_distance
+    return level + up.astype(int) - (e.fell & ~up).astype(int)
+
+
+def _uniform(cur: TerrainCurriculum, level: np.ndarray, e: EpisodeEnds) -> np.ndarray:
+    return cur.rng.integers(0, cur.num_levels, len(level))
+
+
+#: curriculum rule name -> the next level (k,) of the envs whose episodes ended (before clipping)
+RULES: dict[str, Callable[[TerrainCurriculum, np.ndarray, EpisodeEnds], np.ndarray]] = {
+    "distance": _distance,
+    "falls": _falls,
+    "uniform": _uniform,
+}
+
+
 class TerrainCurriculum:
     """Per-env terrain type, level and tile index into ``bank``.
 
     up_distance: m walked from the tile centre to move up (default: 60 % of the half tile);
     down_share: fraction of the commanded distance below which an env moves down;
     max_init_level: envs start on levels 0..max_init_level;
-    shares: share of the envs per bank type (None: equal shares).
+    shares: share of the envs per bank type (None: equal shares);
+    rule: how levels move (a key of :data:`RULES`).
     """
 
     def __init__(
@@ -49,7 +91,11 @@ class TerrainCurriculum:
         down_share: float = 0.5,
         enabled: bool = True,
         shares: np.ndarray | None = None,
+        rule: str = "distance",
     ) -> None:
+        if rule not in RULES:
+            raise ValueError(f"unknown curriculum rule '{rule}'; choose from {', '.join(RULES)}")
+        self.rule = RULES[rule]
         self.bank = bank
         self.rng = rng
         self.enabled = enabled
@@ -65,16 +111,14 @@ class TerrainCurriculum:
         variant = self.rng.integers(0, self.bank.cfg.variants_per_level, len(ids))
         return np.asarray(self.bank.tile_index(self.kind[ids], self.level[ids], variant))
 
-    def update(self, ids: np.ndarray, distance: np.ndarray, commanded: np.ndarray) -> np.ndarray:
-        """Move envs ``ids`` whose episode ended; distance walked and commanded (m), (k,) each.
+    def update(self, ids: np.ndarray, ends: EpisodeEnds) -> np.ndarray:
+        """Move envs ``ids`` (k,) whose episode ended as ``ends`` says, by the rule.
 
         Returns the ids whose tile changed (their worlds need the new height field).
         """
         if not self.enabled or len(ids) == 0:
             return np.empty(0, dtype=np.int64)
-        up = distance > self.up_distance
-        down = (distance < self.down_share * commanded) & ~up
-        new = np.clip(self.level[ids] + up.astype(int) - down.astype(int), 0, self.num_levels - 1)
+        new = np.clip(self.rule(self, self.level[ids], ends), 0, self.num_levels - 1)
         changed = ids[new != self.level[ids]]
         self.level[ids] = new
         self.tile[changed] = self._draw_tiles(changed)

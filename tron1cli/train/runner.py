@@ -39,7 +39,9 @@ class RunConfig:
     checkpoint period (iterations); ablation: reward preset name; gait_prior: clock + schedule;
     preset: the ``tron1 train --preset`` the run started from (``tron1cli.config.presets``) and
     preset_overrides: the options given explicitly on top of it; init_from: the checkpoint whose
-    weights the run started from (``tron1 train --init``; None: a fresh initialisation).
+    weights the run started from (``tron1 train --init``; None: a fresh initialisation);
+    init_action_std: with ``init_from``, the action standard deviation (action units, every
+    joint) the policy starts at instead of the source's (``--init-std``); None: the source's.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -51,6 +53,7 @@ class RunConfig:
     preset: str = "none"
     preset_overrides: tuple[str, ...] = ()
     init_from: str | None = None
+    init_action_std: float | None = None
     #: the reward a saved run was trained with (restored from its config); None: built from
     #: ``ablation`` and ``gait_prior`` with this version's defaults
     saved_reward: RewardConfig | None = field(default=None, compare=False, repr=False)
@@ -60,6 +63,10 @@ class RunConfig:
             raise ValueError(f"iterations must be positive, got {self.iterations}")
         if self.save_every < 1:
             raise ValueError(f"save_every must be positive, got {self.save_every}")
+        if self.init_action_std is not None and not (
+            math.isfinite(self.init_action_std) and self.init_action_std > 0
+        ):
+            raise ValueError(f"init_action_std must be a positive number, got {self.init_action_std}")
         if self.gait_prior != self.env.gait.enabled:
             raise ValueError("gait_prior and env.gait.enabled disagree")
         clocked = self.reward.clock_terms
@@ -128,6 +135,7 @@ def run_config(
         pushes=preset.pushes,
         terrain_mix=dict(preset.terrain_mix),
         max_init_level=preset.init_level,
+        curriculum_rule=preset.curriculum_rule,
     )
     learner_cfg = replace(
         LearnerConfig(),
@@ -312,6 +320,10 @@ class Trainer:
             if not self.warm_start.copied and not self.warm_start.widened:
                 raise Tron1Error(f"--init {init}: the checkpoint shares no weights with this run's networks")
             origin = f"{init} (iteration {int(source['iteration'])})"
+            if cfg.init_action_std is not None:
+                with torch.no_grad():
+                    self.learner.model.log_std.fill_(math.log(cfg.init_action_std))
+                origin += f", action std set to {cfg.init_action_std:g}"
             self.levels_carried = self._carry_levels(source)
             if self.levels_carried:
                 origin += ", terrain levels carried"
