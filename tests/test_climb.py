@@ -223,6 +223,8 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
         "--envs", "4", "--iterations", "1", "--steps-per-env", "2", "--hidden", "16", "--run-dir", str(run),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
+    header = " ".join(r.stderr.split())
+    assert "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9), 4 envs" in header
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
     r = tron1(

@@ -665,6 +665,18 @@ def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:
     return weights
 
 
+def _terrain_summary(e) -> str:
+    """The header's note on a run's terrain options where they are not the defaults."""
+    notes = []
+    if e.terrain_mix:
+        notes.append("mix " + ", ".join(f"{k}={v:g}" for k, v in e.terrain_mix.items()))
+    if e.max_init_level:
+        notes.append(f"starting on levels 0-{e.max_init_level}")
+    if e.curriculum_rule != "distance":
+        notes.append(f"curriculum rule {e.curriculum_rule}")
+    return f" ({'; '.join(notes)})" if notes else ""
+
+
 #: seconds between the plain progress lines written when stderr is not a terminal (a log file)
 LOG_EVERY_S = 60.0
 
@@ -682,7 +694,8 @@ def _run(trainer, run_dir: Path, target, minutes, rerun_every, resumed: bool) ->
         )
         return
     err.print(
-        f"[bold]tron1 train[/] {c.env.terrain}, {c.env.num_envs} envs ({trainer.n_teacher} teacher) x "
+        f"[bold]tron1 train[/] {c.env.terrain}{_terrain_summary(c.env)}, {c.env.num_envs} envs "
+        f"({trainer.n_teacher} teacher) x "
         f"{c.learner.num_steps_per_env} steps x {c.iterations:,} iterations, {_preset_summary(c)}, "
         f"ablation {c.ablation}, gait prior {'on' if c.gait_prior else 'off'}, "
         f"critic weights {_weights_summary(c.learner.critic_weights)}, "
