@@ -13,7 +13,7 @@ from tests.test_bad_input import one_error_line
 from tron1cli.config import EnvConfig
 from tron1cli.env.curriculum import RULES, EpisodeEnds, TerrainCurriculum, deal_types
 from tron1cli.env.rewards import RewardConfig, swing_apex_m, with_settings
-from tron1cli.env.terrain import TerrainBank, TerrainConfig, riser_m
+from tron1cli.env.terrain import TerrainBank, TerrainConfig, highest_ground_height, riser_m
 from tron1cli.evaluation.climb import risers_climbed
 
 
@@ -115,6 +115,26 @@ def test_reward_settings_refuse_unknown_names_and_bad_lengths():
         with_settings(RewardConfig(), {"gait_clearance_top_m": -0.2})
     cfg = with_settings(RewardConfig(), {"gait_clearance_top_m": 0.2})
     assert RewardConfig.from_dict(cfg.to_dict()) == cfg  # saved with the run and read back
+
+
+def test_highest_ground_sees_the_tread_above_a_nearby_riser():
+    """A 0.2 m step up at x = 0.05 m (columns right of the centre) on a 0.05 m grid: a foot 0.1 m
+    before the riser sees the lower tread under it, the upper one within a 0.15 m reach."""
+    heights = np.zeros((1, 21, 21), dtype=np.float32)
+    heights[0, :, 11:] = 0.2
+    xy = np.array([[-0.1, 0.0], [-0.3, 0.0], [0.2, 0.1]])
+    tile = np.zeros(3, dtype=np.int64)
+    np.testing.assert_allclose(highest_ground_height(heights, tile, xy, 0.05, 0.0), [0.0, 0.0, 0.2])
+    np.testing.assert_allclose(highest_ground_height(heights, tile, xy, 0.05, 0.15), [0.2, 0.0, 0.2])
+
+
+def test_clearance_reach_is_a_reward_setting_and_refused_out_of_range():
+    cfg = with_settings(RewardConfig(), {"gait_clearance_reach_m": 0.15})
+    assert cfg.gait_clearance_reach_m == 0.15
+    assert RewardConfig.from_dict(cfg.to_dict()).gait_clearance_reach_m == 0.15
+    assert "gait_clearance_reach_m" not in RewardConfig().to_dict()  # older runs' configs unchanged
+    with pytest.raises(ValueError, match=r"gait_clearance_reach_m must lie in \[0, 1\) m"):
+        with_settings(RewardConfig(), {"gait_clearance_reach_m": -0.1})
 
 
 def test_riser_heights_of_the_probe_levels():

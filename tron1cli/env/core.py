@@ -25,7 +25,7 @@ from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model
 from tron1cli.env.state import RobotState, read_state
-from tron1cli.env.terrain import TerrainBank, ground_height, mean_ground_height
+from tron1cli.env.terrain import TerrainBank, ground_height, highest_ground_height, mean_ground_height
 
 EDGE_MARGIN_M = 0.5  #: an env whose base comes this close to its tile's edge ends its episode (time-out)
 
@@ -314,6 +314,11 @@ class Tron1Env:
     def ground_height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain height (m) under world points ``xy`` (N, 2), each env on its own tile."""
         return ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res)
+
+    def highest_ground(self, xy: np.ndarray, reach_m: float) -> np.ndarray:
+        """Highest terrain (m) within ``reach_m`` of world points ``xy`` (N, 2), each env on its own
+        tile (:func:`tron1cli.env.terrain.highest_ground_height`)."""
+        return highest_ground_height(self.bank.heights, self.curriculum.tile, xy, self.bank.res, reach_m)
 
     def lipm_ground_height(self, xy: np.ndarray) -> np.ndarray:
         """Ground height (m) of the LIPM constraint plane under world points ``xy`` (N, 2): the

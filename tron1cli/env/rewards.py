@@ -97,7 +97,9 @@ class RewardConfig:
     term; gait_clearance_m: swing apex (m above the terrain under the foot) the clearance term
     asks for; gait_clearance_top_m: when set, the apex rises linearly with the env's terrain level
     from ``gait_clearance_m`` (level 0) to this (the top level), so that higher risers get higher
-    steps; ablation: the preset this config came from (recorded with the run).
+    steps; gait_clearance_reach_m: the apex is measured from the highest terrain within this
+    distance (m) of the foot (0: the terrain under it), so a foot nearing a riser is asked to clear
+    the tread above; ablation: the preset this config came from (recorded with the run).
     """
 
     terms: Mapping[str, TermCfg] = field(default_factory=lambda: MappingProxyType(_paper_terms()))
@@ -109,6 +111,7 @@ class RewardConfig:
     gait_speed_scale: float = 0.5
     gait_clearance_m: float = 0.1
     gait_clearance_top_m: float | None = None
+    gait_clearance_reach_m: float = 0.0
     ablation: str = "none"
 
     def __post_init__(self) -> None:
@@ -121,6 +124,9 @@ class RewardConfig:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, int | float) and 0.0 < v < 10.0):
                 raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
+        if not 0.0 <= self.gait_clearance_reach_m < 1.0:
+            reach = self.gait_clearance_reach_m
+            raise ValueError(f"gait_clearance_reach_m must lie in [0, 1) m, got {reach!r}")
         if not self.lipm_ground_window_m >= 0.0:
             raise ValueError(f"lipm_ground_window_m must be >= 0, got {self.lipm_ground_window_m!r}")
 
@@ -149,6 +155,9 @@ class RewardConfig:
                 {}
                 if self.gait_clearance_top_m is None
                 else {"gait_clearance_top_m": self.gait_clearance_top_m}
+            ),
+            **(
+                {"gait_clearance_reach_m": self.gait_clearance_reach_m} if self.gait_clearance_reach_m else {}
             ),
             "ablation": self.ablation,
             "groups": list(self.groups),
@@ -249,6 +258,7 @@ REWARD_SETTINGS = (
     "gait_speed_scale",
     "gait_clearance_m",
     "gait_clearance_top_m",
+    "gait_clearance_reach_m",
 )
 
 
@@ -307,7 +317,8 @@ def _swing_clearance(env: Tron1Env) -> np.ndarray:
     h = swing_apex_m(env.reward_cfg, env.curriculum.level, env.curriculum.num_levels)
     target = gait.swing_height_target(gait.leg_phases(env.commands.gait_phase, g.offset), g.stance, h)
     feet = env.state.foot_pos
-    ground = np.stack([env.ground_height(feet[:, i, :2]) for i in range(feet.shape[1])], axis=1)
+    reach = env.reward_cfg.gait_clearance_reach_m
+    ground = np.stack([env.highest_ground(feet[:, i, :2], reach) for i in range(feet.shape[1])], axis=1)
     return gait.clearance_shortfall(feet[:, :, 2] - robot.FOOT_RADIUS - ground, target, h)
 
 

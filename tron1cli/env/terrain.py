@@ -518,6 +518,21 @@ def window_offsets(side_m: float, res: float) -> np.ndarray:
     return np.ascontiguousarray(np.stack([gx.ravel(), gy.ravel()], axis=1))
 
 
+#: unit directions of the ring :func:`highest_ground_height` samples around each point
+_RING = np.array([[np.cos(a), np.sin(a)] for a in np.arange(8) * np.pi / 4])
+
+
+def highest_ground_height(bank_heights, tile_idx, xy, res: float, reach_m: float) -> np.ndarray:
+    """Highest terrain height (N,) float64 at the world points ``xy`` (N, 2) and at 8 points around
+    each, ``reach_m`` (m) away in every 45-degree direction: a foot within ``reach_m`` of a riser
+    sees the tread above it. ``reach_m`` 0 is :func:`ground_height` at ``xy``."""
+    top = ground_height(bank_heights, tile_idx, xy, res)
+    if reach_m > 0.0:
+        for d in _RING:
+            np.maximum(top, ground_height(bank_heights, tile_idx, xy + reach_m * d, res), out=top)
+    return top
+
+
 def mean_ground_height(bank_heights, tile_idx, xy, res: float, side_m: float) -> np.ndarray:
     """Terrain height (N,) float64 averaged over a world-aligned ``side_m`` square around each of
     the world points ``xy`` (N, 2) (m), sampled at the bank resolution ``res`` (m) or finer.
