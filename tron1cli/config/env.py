@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, replace
 
-from tron1cli.env.curriculum import RULES as CURRICULUM_RULES
+from tron1cli.env.curriculum import rule_named
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TerrainConfig, resolve_terrain
 
@@ -176,10 +176,7 @@ class EnvConfig:
             raise ValueError(f"max_init_level must lie in 0..{self.terrain_cfg.num_levels - 1}")
         if self.terrain_mix:
             self.type_shares()
-        if self.curriculum_rule not in CURRICULUM_RULES:
-            raise ValueError(
-                f"unknown curriculum rule '{self.curriculum_rule}'; choose from {', '.join(CURRICULUM_RULES)}"
-            )
+        rule_named(self.curriculum_rule)
 
     def type_shares(self) -> list[float] | None:
         """Share of the envs per type of ``terrain`` (in bank order) from ``terrain_mix``, or None

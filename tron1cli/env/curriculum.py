@@ -71,6 +71,13 @@ RULES: dict[str, Callable[[TerrainCurriculum, np.ndarray, EpisodeEnds], np.ndarr
 }
 
 
+def rule_named(name: str) -> Callable[[TerrainCurriculum, np.ndarray, EpisodeEnds], np.ndarray]:
+    """The rule of :data:`RULES` called ``name``; ValueError, one line, for any other name."""
+    if name not in RULES:
+        raise ValueError(f"unknown curriculum rule '{name}'; choose from {', '.join(RULES)}")
+    return RULES[name]
+
+
 class TerrainCurriculum:
     """Per-env terrain type, level and tile index into ``bank``.
 
@@ -93,9 +100,7 @@ class TerrainCurriculum:
         shares: np.ndarray | None = None,
         rule: str = "distance",
     ) -> None:
-        if rule not in RULES:
-            raise ValueError(f"unknown curriculum rule '{rule}'; choose from {', '.join(RULES)}")
-        self.rule = RULES[rule]
+        self.rule = rule_named(rule)
         self.bank = bank
         self.rng = rng
         self.enabled = enabled
