@@ -257,3 +257,19 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
         "2",
     )
     assert r.returncode == 0, r.stderr
+
+
+def test_gait_by_speed_reports_a_walking_teacher(teacher_stage_ckpt):
+    import importlib.util
+    from pathlib import Path
+
+    from tron1cli.policy.runtime import load_policy
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "gait_by_speed.py"
+    spec = importlib.util.spec_from_file_location("gait_by_speed", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    row = tool.gait_at_speed(load_policy(str(teacher_stage_ckpt), actor="teacher"), 3, 0.5, envs=2, steps=5)
+    assert set(row) == set(tool.COLUMNS)
+    assert 0.0 <= row["survival"] <= 1.0 and row["risers"] >= 0.0
+    assert 0.5 < row["base_height_m"] < 1.0  # 5 steps after reset the robot still stands

@@ -212,11 +212,15 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
     assert list(sweeps) == ["vx", "yaw"] and sweeps["yaw"]["unit"] == "rad/s"
     assert set(sweeps["vx"]["results"]["ours"]["flat"]) == {"0.5", "1.0"}
     assert set(sweeps["yaw"]["results"]["ours"]["flat"]) == {"0.25"}
+    progress = rep["progress_by_speed"]["vx"]["results"]["ours"]["flat"]
+    assert set(progress) == {"0.5", "1.0"} and all(set(a) == {"mean", "std", "n"} for a in progress.values())
     ev = tmp_path / "ev"
     for f in ("results.json", "results.csv", "success_by_speed_vx.png", "success_by_speed_yaw.png"):
         assert (ev / f).stat().st_size > 0
     rows = list(csv.reader(open(ev / "success_by_speed_vx.csv")))
     assert rows[0][2] == "vx_mps" and [row[2] for row in rows[1:]] == ["0.5", "1.0"]
+    assert rows[0][5:] == ["progress_mean", "progress_std"]
+    assert [float(row[5]) for row in rows[1:]] == [progress["0.5"]["mean"], progress["1.0"]["mean"]]
     rows = list(csv.reader(open(ev / "success_by_speed_yaw.csv")))
     assert rows[0][2] == "yaw_radps" and [row[2] for row in rows[1:]] == ["0.25"]
 

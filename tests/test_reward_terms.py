@@ -127,6 +127,22 @@ def test_collisions_is_float_count() -> None:
     np.testing.assert_array_equal(c, [0.0, 3.0, 1.0])
 
 
+def test_height_error_sq_hand_values() -> None:
+    np.testing.assert_allclose(rt.height_error_sq(np.array([0.56, 0.42, 0.32]), 0.42), [0.0196, 0.0, 0.01])
+
+
+def test_foot_stumble_counts_feet_pushed_more_sideways_than_up() -> None:
+    f = np.array(
+        [
+            [[0.0, 0.0, 100.0], [30.0, 40.0, 100.0]],  # standing, and slipping within friction: 0
+            [[50.0, 0.0, 10.0], [0.0, 0.0, 0.0]],  # a toe on a riser's face; a foot in the air: 1
+            [[0.0, -21.0, 10.0], [-30.0, 0.0, -5.0]],  # both beyond twice the vertical force: 2
+        ]
+    )
+    np.testing.assert_array_equal(rt.foot_stumble(f), [0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(rt.foot_stumble(f, ratio=0.4), [1.0, 1.0, 2.0])
+
+
 def test_joint_limit_violations_hand_case() -> None:
     q_range = np.array([[-1.0, 1.0], [0.0, 2.0], [-0.5, 0.5]])
     q = _v((0.0, 1.0, 0.0), (1.5, -0.1, 0.45), (1.0, 0.0, -0.5))

@@ -159,6 +159,15 @@ def _fmt(m: dict, pct: bool) -> str:
     return f"{k * m['mean']:.1f} ± {k * m['std']:.1f}" if pct else f"{m['mean']:.3f} ± {m['std']:.3f}"
 
 
+def _speed_cell(success: dict, progress: dict) -> str:
+    """ "success % / command progress" of one commanded speed; with a std where a method has
+    several policies."""
+    if success["n"] > 1:
+        return f"{_fmt(success, True)} / {_fmt(progress, False)}"
+    prog = "-" if progress["mean"] is None else f"{progress['mean']:.2f}"
+    return f"{100.0 * success['mean']:.1f} / {prog}"
+
+
 def eval_cmd(
     policies: list[str] = typer.Argument(..., help=POLICY_HELP, show_default=False),
     terrain: str = typer.Option("all", "--terrain", "-t", help=terrain_help(("all",))),
@@ -300,7 +309,9 @@ def eval_cmd(
     total = n_pol * steps * len(terrains) * (1 + n_speeds)
     results: dict = {label: {} for label in loaded}
     coverage: dict = {label: {} for label in loaded}
+    # per swept dimension, method, terrain and speed: success (by_speed) and command progress
     by_speed: dict = {dim: {label: {t: {} for t in terrains} for label in loaded} for dim in plan}
+    progress_by_speed: dict = {dim: {label: {t: {} for t in terrains} for label in loaded} for dim in plan}
     stream = open_stream(target, recording_name="tron1 eval")
     with progress_bar(total, "eval") as advance:
         try:
@@ -333,6 +344,9 @@ def eval_cmd(
                                 for p in pols
                             ]
                             by_speed[dim][label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
+                            progress_by_speed[dim][label][t][v] = aggregate(
+                                [r.metrics["command_progress"] for r in sr]
+                            )
                             _warn_left(sr, f"{label} {t} {dim}:{v:g}")
                     _warn_left(runs, f"{label} {t}")
         except KeyboardInterrupt:
@@ -360,20 +374,21 @@ def eval_cmd(
         "results": results,
         "coverage": coverage,
     }
-    if plan:
-        report["success_by_speed"] = {
-            dim: {
-                "unit": SPEED_DIMS[dim].unit,
-                "results": {
-                    lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
-                    for lab, per in by_speed[dim].items()
-                },
+    for key, sweep in (("success_by_speed", by_speed), ("progress_by_speed", progress_by_speed)):
+        if plan:
+            report[key] = {
+                dim: {
+                    "unit": SPEED_DIMS[dim].unit,
+                    "results": {
+                        lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
+                        for lab, per in sweep[dim].items()
+                    },
+                }
+                for dim in plan
             }
-            for dim in plan
-        }
     replaced = out_dir is not None and (out_dir / "results.json").exists()
     if out_dir is not None:
-        _write_eval_outputs(out_dir, report, by_speed)
+        _write_eval_outputs(out_dir, report, by_speed, progress_by_speed)
     if as_json:
         print_json(report)
         render_video(recorder)
@@ -397,13 +412,20 @@ def eval_cmd(
     out.print(table)
     for dim, values in plan.items():
         d = SPEED_DIMS[dim]
-        table = Table(title=f"success rate (%) by commanded {d.words}")
+        table = Table(
+            title=f"success rate (%) / command progress by commanded {d.words}",
+            caption="a success that stands still has progress near 0",
+        )
         table.add_column("method / terrain")
         for v in values:
             table.add_column(f"{v:g} {d.unit}", justify="right")
         for label in loaded:
             for t in terrains:
-                table.add_row(f"{label} / {t}", *(_fmt(by_speed[dim][label][t][v], True) for v in values))
+                cells = (
+                    _speed_cell(by_speed[dim][label][t][v], progress_by_speed[dim][label][t][v])
+                    for v in values
+                )
+                table.add_row(f"{label} / {t}", *cells)
         out.print(table)
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
@@ -536,8 +558,9 @@ def _csv_text(rows: list[list]) -> str:
     return buf.getvalue()
 
 
-def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict) -> None:
-    """results.json, results.csv and, per swept dimension, success_by_speed_DIM.csv and .png."""
+def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict, progress_by_speed: dict) -> None:
+    """results.json, results.csv and, per swept dimension, success_by_speed_DIM.csv (success and
+    command progress by speed) and success_by_speed_DIM.png."""
     from tron1cli.evaluation.protocol import SPEED_DIMS
     from tron1cli.viz.plots import success_by_speed
 
@@ -552,11 +575,13 @@ def _write_eval_outputs(out_dir: Path, report: dict, by_speed: dict) -> None:
     write_file(out_dir / "results.csv", _csv_text(rows))
     for dim, per_label in by_speed.items():
         unit = SPEED_DIMS[dim].unit
-        rows = [["method", "terrain", f"{dim}_{unit.replace('/', 'p')}", "success_mean", "success_std"]]
+        speed = f"{dim}_{unit.replace('/', 'p')}"
+        rows = [["method", "terrain", speed, "success_mean", "success_std", "progress_mean", "progress_std"]]
         for label, per in per_label.items():
             for t, d in per.items():
                 for v, a in d.items():
-                    rows.append([label, t, v, a["mean"], a["std"]])
+                    p = progress_by_speed[dim][label][t][v]
+                    rows.append([label, t, v, a["mean"], a["std"], p["mean"], p["std"]])
         write_file(out_dir / f"success_by_speed_{dim}.csv", _csv_text(rows))
         terrains = next(iter(per_label.values()))
         curves = {

@@ -118,6 +118,20 @@ def collisions(count: np.ndarray) -> np.ndarray:
     return _f64(count)
 
 
+def height_error_sq(z: np.ndarray, target: float) -> np.ndarray:
+    """Height penalty ``(z - target)^2`` in m^2, heights ``z`` (N,) and ``target`` in m."""
+    return (_f64(z) - float(target)) ** 2
+
+
+def foot_stumble(foot_force: np.ndarray, ratio: float = 2.0) -> np.ndarray:
+    """Stumble penalty: the number of feet (N,) whose ground force is more horizontal than
+    vertical by ``ratio`` (``|F_xy| > ratio |F_z|``), as when a swinging foot strikes a riser's
+    face; ``foot_force`` (N, F, 3) N, world frame. A foot in the air (zero force) does not count."""
+    f = _f64(foot_force)
+    horizontal = np.linalg.norm(f[..., :2], axis=-1)
+    return np.sum(horizontal > ratio * np.abs(f[..., 2]), axis=-1).astype(np.float64)
+
+
 def joint_limit_violations(
     q: np.ndarray,
     qd: np.ndarray,

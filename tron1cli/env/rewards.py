@@ -346,6 +346,8 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     "joint_limit": lambda env: rt.joint_limit_violations(
         env.state.joint_pos, env.state.joint_vel, robot.JOINT_RANGES, robot.VELOCITY_LIMIT
     ),
+    "foot_stumble": lambda env: rt.foot_stumble(env.state.foot_force),
+    "com_height": lambda env: rt.height_error_sq(env.lipm.z, env.reward_cfg.z_c),
     "gait_swing_force": _swing_force,
     "gait_stance_speed": _stance_speed,
     "gait_swing_clearance": _swing_clearance,

@@ -1,0 +1,81 @@
+"""How does a teacher walk at a fixed forward speed on stairs up? Posture and feet, by speed.
+
+A lab tool, not a ``tron1`` command: for each commanded forward speed (m/s; no lateral or yaw
+command) it runs the climb probe's set-up (stairs up at one level, randomisation on, seed 0,
+128 envs) for 300 policy steps (6 s) and prints, over the envs still walking at each step:
+survival at the end, the forward speed walked (m/s), the risers climbed per env (the highest the
+ground under the base got above its spawn, in risers, rounded), the base's height above the
+ground under it (m; 0.81 with straight legs) and the swinging feet's clearance (m, foot-sphere
+centre above the ground under it, averaged over every step a foot is in the air).
+
+    python tools/gait_by_speed.py policies/runs/climb/checkpoints/latest.pt --level 9
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from tron1cli.env.terrain import riser_m
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, risers_climbed
+from tron1cli.evaluation.protocol import EvalSpec, make_env
+from tron1cli.policy.runtime import load_policy
+
+SPEEDS = (0.3, 0.5, 0.8)  #: default forward speeds (m/s)
+COLUMNS = ("survival", "vx_mps", "risers", "base_height_m", "swing_clearance_m")
+
+
+def gait_at_speed(policy, level: int, speed: float, envs: int = CLIMB_ENVS, steps: int = 300) -> dict:
+    """The figures of :data:`COLUMNS` for ``policy``'s teacher commanded ``speed`` m/s forward."""
+    env = make_env(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0))
+    out = np.zeros(env.n, dtype=bool)  # fell or left the tile: its window is over
+    vx, height, clearance = [], [], []
+    try:
+        obs, hidden = env.reset(), policy.initial_hidden(env.n)
+        start = env.ground_height(env.state.base_pos[:, :2])
+        top = start.copy()
+        for _ in range(steps):
+            action, hidden, _ = policy.act(obs, hidden)
+            res = env.step(action)
+            ended = res.failed | res.unstable | res.time_out  # these envs' state is their reset
+            s, walking = env.state, ~out & ~ended
+            out |= ended
+            hidden[res.done] = 0.0
+            obs = res.obs
+            if not walking.any():
+                break
+            ground = env.ground_height(s.base_pos[:, :2])
+            top = np.where(walking, np.maximum(top, ground), top)
+            vx.append(s.base_lin_vel_b[walking, 0].mean())
+            height.append((s.base_pos[:, 2] - ground)[walking].mean())
+            feet = np.stack([env.ground_height(s.foot_pos[:, k, :2]) for k in range(2)], axis=1)
+            swing = ~s.foot_in_contact & walking[:, None]
+            if swing.any():
+                clearance.append((s.foot_pos[:, :, 2] - feet)[swing].mean())
+    finally:
+        env.close()
+    return dict(
+        survival=float((~out).mean()),
+        vx_mps=float(np.mean(vx)) if vx else float("nan"),
+        risers=risers_climbed(top - start, riser_m(policy.run_cfg.env.terrain_cfg, level)),
+        base_height_m=float(np.mean(height)) if height else float("nan"),
+        swing_clearance_m=float(np.mean(clearance)) if clearance else float("nan"),
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoint")
+    ap.add_argument("--level", type=int, default=9)
+    ap.add_argument("--speeds", type=float, nargs="+", default=list(SPEEDS))
+    args = ap.parse_args()
+    policy = load_policy(args.checkpoint, actor="teacher")
+    print(f"stairs up, level {args.level}, teacher: speed (m/s), " + ", ".join(COLUMNS))
+    for v in args.speeds:
+        row = gait_at_speed(policy, args.level, v)
+        print(f"{v:5.2f} " + " ".join(f"{row[c]:8.3f}" for c in COLUMNS))
+
+
+if __name__ == "__main__":
+    main()
