@@ -160,8 +160,8 @@ def _fmt(m: dict, pct: bool) -> str:
 
 
 def _speed_cell(success: dict, progress: dict) -> str:
-    """ "success % / command progress" of one commanded speed; with a std where a method has
-    several policies."""
+    """One commanded speed's cell, success % and command progress ("96.1 / 0.07"), with stds
+    where a method has several policies."""
     if success["n"] > 1:
         return f"{_fmt(success, True)} / {_fmt(progress, False)}"
     prog = "-" if progress["mean"] is None else f"{progress['mean']:.2f}"
