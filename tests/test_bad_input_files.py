@@ -247,13 +247,13 @@ def test_eval_results_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
     report = {"results": {"ours": {"flat": {f"m{k}": agg for k in range(400)}}}, "pad": "x" * 9000}
     fill_disk(monkeypatch)
     with pytest.raises(OSError) as e:
-        _write_eval_outputs(out, report, {})
+        _write_eval_outputs(out, report, {}, {})
     assert e.value.errno == errno.ENOSPC and e.value.filename == str(out / "results.json")
     assert (out / "results.json").read_text() == '{"earlier": "results"}'  # not cut to 4096 bytes
     assert (out / "results.csv").read_text() == "earlier,results\n"
     assert sorted(p.name for p in out.iterdir()) == ["results.csv", "results.json"]  # no temp files
     monkeypatch.undo()
-    _write_eval_outputs(out, report, {})
+    _write_eval_outputs(out, report, {}, {})
     assert json.loads((out / "results.json").read_text()) == report
     assert (out / "results.csv").read_text().count("\n") == 401
 
