@@ -374,18 +374,18 @@ def eval_cmd(
         "results": results,
         "coverage": coverage,
     }
-    for key, sweep in (("success_by_speed", by_speed), ("progress_by_speed", progress_by_speed)):
-        if plan:
-            report[key] = {
-                dim: {
-                    "unit": SPEED_DIMS[dim].unit,
-                    "results": {
-                        lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
-                        for lab, per in sweep[dim].items()
-                    },
-                }
-                for dim in plan
+    sweeps = (("success_by_speed", by_speed), ("progress_by_speed", progress_by_speed)) if plan else ()
+    for key, sweep in sweeps:
+        report[key] = {
+            dim: {
+                "unit": SPEED_DIMS[dim].unit,
+                "results": {
+                    lab: {t: {str(v): m for v, m in d.items()} for t, d in per.items()}
+                    for lab, per in sweep[dim].items()
+                },
             }
+            for dim in plan
+        }
     replaced = out_dir is not None and (out_dir / "results.json").exists()
     if out_dir is not None:
         _write_eval_outputs(out_dir, report, by_speed, progress_by_speed)
