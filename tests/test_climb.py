@@ -260,16 +260,29 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
 
 
 def test_gait_by_speed_reports_a_walking_teacher(teacher_stage_ckpt):
-    import importlib.util
-    from pathlib import Path
-
     from tron1cli.policy.runtime import load_policy
 
-    path = Path(__file__).resolve().parents[1] / "tools" / "gait_by_speed.py"
-    spec = importlib.util.spec_from_file_location("gait_by_speed", path)
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _lab_tool("gait_by_speed")
     row = tool.gait_at_speed(load_policy(str(teacher_stage_ckpt), actor="teacher"), 3, 0.5, envs=2, steps=5)
     assert set(row) == set(tool.COLUMNS)
     assert 0.0 <= row["survival"] <= 1.0 and row["risers"] >= 0.0
     assert 0.5 < row["base_height_m"] < 1.0  # 5 steps after reset the robot still stands
+
+
+def _lab_tool(name: str):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    return tool
+
+
+def test_falls_by_command_splits_the_whole_exposure(teacher_stage_ckpt):
+    tool = _lab_tool("falls_by_command")
+    rows = tool.falls_by_command(str(teacher_stage_ckpt), 9, envs=3, steps=40)
+    assert [r[0] for r in rows] == [label for label, _ in tool.BANDS]
+    exposure, falls = sum(r[1] for r in rows), sum(r[2] for r in rows)
+    assert 0.0 < exposure <= 3 * 40 * 0.02 + 1e-9 and 0 <= falls <= 3

@@ -95,6 +95,19 @@ def test_same_seed_same_metrics_and_checkpoint_equals_onnx(tiny_ckpt, tmp_path):
     )
 
 
+def test_after_step_sees_every_walking_step(tiny_ckpt):
+    walked = []
+
+    def after_step(env: Tron1Env, res, walking: np.ndarray) -> None:
+        walked.append(walking & ~res.done)
+
+    res = run_batch(
+        load_policy(tiny_ckpt), EvalSpec("stairs", 9, num_envs=4, steps=60), after_step=after_step
+    )
+    assert len(walked) == 60
+    np.testing.assert_allclose(np.sum(walked, axis=0) * 0.02, res.exposure_s)
+
+
 def test_reconstruction_error_for_a_vision_policy_on_stairs(tiny_ckpt_vision):
     res = run_batch(load_policy(tiny_ckpt_vision), EvalSpec("stairs", 5, num_envs=4, steps=20))
     assert res.metrics["reconstruction_error_cm"] is not None and res.metrics["reconstruction_error_cm"] > 0

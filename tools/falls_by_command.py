@@ -15,7 +15,7 @@ import argparse
 import numpy as np
 
 from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN
-from tron1cli.evaluation.protocol import EvalSpec, make_env
+from tron1cli.evaluation.protocol import EvalSpec, run_batch
 from tron1cli.policy.runtime import load_policy
 
 #: (label, lower bound of the forward command in m/s); a step belongs to the first band it exceeds
@@ -25,24 +25,19 @@ BANDS = (("vx > 0.65", 0.65), ("vx 0.3-0.65", 0.3), ("vx 0-0.3", 0.0), ("vx <= 0
 def falls_by_command(path: str, level: int, envs: int = CLIMB_ENVS, steps: int = 500) -> list[tuple]:
     """Rows (band, exposure s, falls, falls per minute) of the teacher of checkpoint ``path``."""
     policy = load_policy(path, actor="teacher")
-    env = make_env(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, seed=0))
     exposure, falls = np.zeros(len(BANDS)), np.zeros(len(BANDS))
-    out = np.zeros(env.n, dtype=bool)  # fell or left the tile: its window is over
-    try:
-        obs, hidden = env.reset(), policy.initial_hidden(env.n)
-        for _ in range(steps):
-            vx = env.commands.value[:, 0].copy()
-            band = np.select([vx > lo for _, lo in BANDS], range(len(BANDS)))
-            action, hidden, _ = policy.act(obs, hidden)
-            res = env.step(action)
-            walking = ~out
-            exposure += np.bincount(band[walking], minlength=len(BANDS)) * env.policy_dt
-            falls += np.bincount(band[walking & res.failed], minlength=len(BANDS))
-            out |= res.failed | res.unstable | res.time_out
-            hidden[res.done] = 0.0
-            obs = res.obs
-    finally:
-        env.close()
+    band = np.zeros(envs, dtype=int)
+
+    def note_band(env, t) -> None:  # the command in force during the step
+        vx = env.commands.value[:, 0]
+        band[:] = np.select([vx > lo for _, lo in BANDS], range(len(BANDS)))
+
+    def count(env, res, walking) -> None:
+        exposure[:] += np.bincount(band[walking], minlength=len(BANDS)) * env.policy_dt
+        falls[:] += np.bincount(band[walking & res.failed], minlength=len(BANDS))
+
+    spec = EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, seed=0)
+    run_batch(policy, spec, before_step=note_band, after_step=count)
     return [
         (label, e, int(f), 60.0 * f / e if e > 0 else float("nan"))
         for (label, _), e, f in zip(BANDS, exposure, falls, strict=True)

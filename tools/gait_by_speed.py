@@ -19,7 +19,7 @@ import numpy as np
 
 from tron1cli.env.terrain import riser_m
 from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, risers_climbed
-from tron1cli.evaluation.protocol import EvalSpec, make_env
+from tron1cli.evaluation.protocol import EvalSpec, run_batch
 from tron1cli.policy.runtime import load_policy
 
 SPEEDS = (0.3, 0.5, 0.8)  #: default forward speeds (m/s)
@@ -28,37 +28,25 @@ COLUMNS = ("survival", "vx_mps", "risers", "base_height_m", "swing_clearance_m")
 
 def gait_at_speed(policy, level: int, speed: float, envs: int = CLIMB_ENVS, steps: int = 300) -> dict:
     """The figures of :data:`COLUMNS` for ``policy``'s teacher commanded ``speed`` m/s forward."""
-    env = make_env(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0))
-    out = np.zeros(env.n, dtype=bool)  # fell or left the tile: its window is over
     vx, height, clearance = [], [], []
-    try:
-        obs, hidden = env.reset(), policy.initial_hidden(env.n)
-        start = env.ground_height(env.state.base_pos[:, :2])
-        top = start.copy()
-        for _ in range(steps):
-            action, hidden, _ = policy.act(obs, hidden)
-            res = env.step(action)
-            ended = res.failed | res.unstable | res.time_out  # these envs' state is their reset
-            s, walking = env.state, ~out & ~ended
-            out |= ended
-            hidden[res.done] = 0.0
-            obs = res.obs
-            if not walking.any():
-                break
-            ground = env.ground_height(s.base_pos[:, :2])
-            top = np.where(walking, np.maximum(top, ground), top)
-            vx.append(s.base_lin_vel_b[walking, 0].mean())
-            height.append((s.base_pos[:, 2] - ground)[walking].mean())
-            feet = np.stack([env.ground_height(s.foot_pos[:, k, :2]) for k in range(2)], axis=1)
-            swing = ~s.foot_in_contact & walking[:, None]
-            if swing.any():
-                clearance.append((s.foot_pos[:, :, 2] - feet)[swing].mean())
-    finally:
-        env.close()
+
+    def take(env, res, walking) -> None:
+        s, ok = env.state, walking & ~res.done  # a done env's state is already its reset
+        if not ok.any():
+            return
+        vx.append(s.base_lin_vel_b[ok, 0].mean())
+        height.append((s.base_pos[:, 2] - env.ground_height(s.base_pos[:, :2]))[ok].mean())
+        feet = np.stack([env.ground_height(s.foot_pos[:, k, :2]) for k in range(2)], axis=1)
+        swing = ~s.foot_in_contact & ok[:, None]
+        if swing.any():
+            clearance.append((s.foot_pos[:, :, 2] - feet)[swing].mean())
+
+    spec = EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0)
+    result = run_batch(policy, spec, after_step=take)
     return dict(
-        survival=float((~out).mean()),
+        survival=result.metrics["success_rate"],
         vx_mps=float(np.mean(vx)) if vx else float("nan"),
-        risers=risers_climbed(top - start, riser_m(policy.run_cfg.env.terrain_cfg, level)),
+        risers=risers_climbed(result.rise_m, riser_m(policy.run_cfg.env.terrain_cfg, level)),
         base_height_m=float(np.mean(height)) if height else float("nan"),
         swing_clearance_m=float(np.mean(clearance)) if clearance else float("nan"),
     )

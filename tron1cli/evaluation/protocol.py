@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from tron1cli.config.env import CommandConfig
-from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
+from tron1cli.env.core import EDGE_MARGIN_M, StepResult, Tron1Env
 from tron1cli.env.math3d import roll_pitch
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
@@ -298,11 +298,14 @@ def run_batch(
     spec: EvalSpec,
     on_step: Callable[[int], None] | None = None,
     before_step: Callable[[Tron1Env, int], None] | None = None,
+    after_step: Callable[[Tron1Env, StepResult, np.ndarray], None] | None = None,
     stream=None,
     stream_env: int = 0,
     video=None,
 ) -> EvalResult:
     """Run one batch; ``before_step(env, t)`` may set commands or wrenches (push tests);
+    ``after_step(env, res, walking)`` sees each step's result with the (N,) mask of envs that were
+    still walking before it (lab tools take their own figures there);
     ``stream`` (a :class:`tron1cli.viz.rerun_stream.RerunStream`) gets env ``stream_env`` each step;
     ``video`` (a :class:`tron1cli.viz.video.Take`) records its envs."""
     env = make_env(policy, spec)
@@ -339,6 +342,8 @@ def run_batch(
             res = env.step(action)
             if video is not None:
                 video.step(env, (t + 1) * env.policy_dt, res.done)
+            if after_step is not None:
+                after_step(env, res, walking)
             fell |= walking & (res.failed | res.unstable)
             # the episode outlasts the window, so a walking env's time-out is the tile's edge
             left |= walking & res.time_out
