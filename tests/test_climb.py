@@ -238,13 +238,30 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     run = tmp_path / "mix"
     r = tron1(
         "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
-        "--envs", "4", "--iterations", "1", "--steps-per-env", "2", "--hidden", "16", "--run-dir", str(run),
+        "--face-climb", "--envs", "4", "--iterations", "1", "--steps-per-env", "2", "--hidden", "16",
+        "--run-dir", str(run),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     header = " ".join(r.stderr.split())
-    assert "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9), 4 envs" in header
+    assert (
+        "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; commands facing "
+        "the climb), 4 envs" in header
+    )
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
+    assert saved["commands"]["face_climb"] is True
+    from tron1cli.evaluation.protocol import EvalSpec, make_env
+    from tron1cli.policy.runtime import load_policy
+
+    # the probe draws the training commands: facing the climb on the stairs under test
+    env = make_env(
+        load_policy(str(run / "checkpoints" / "latest.pt"), actor="teacher"),
+        EvalSpec("stairs_up", 9, 64, 2, True),
+    )
+    env.reset()
+    assert env.commands.facing.all() and (env.commands.value[:, 0] >= 0).all()
+    assert (env.commands.value[:, 1] == 0).all()
+    env.close()
     r = tron1(
         "eval",
         str(run / "checkpoints" / "latest.pt"),

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tron1cli.config import EnvConfig, GaitConfig, NoiseConfig, TerminationConfig
+from tron1cli.config import CommandConfig, EnvConfig, GaitConfig, NoiseConfig, TerminationConfig
 from tron1cli.env import robot
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.observations import ObsLayout
@@ -138,6 +138,31 @@ def test_commands_in_range_with_standing_share():
     assert (np.abs(c[:, 2]) <= cfg.ang_vel_yaw[1]).all()
     standing = (c == 0).all(axis=1).mean()
     assert 0.03 < standing < 0.2
+    env.close()
+
+
+def test_face_climb_commands_forward_on_stairs_and_slopes_only():
+    """With face_climb, envs on stairs and slopes get v_x >= 0 and no v_y; the others keep the
+    whole range (both signs of v_x, sideways speed)."""
+    env = make_env(280, terrain="mixed", commands=CommandConfig(face_climb=True))
+    env.reset()
+    for _ in range(3):  # three draws per env
+        env.commands.resample(np.arange(env.n), env.rng)
+        types = np.asarray(env.bank.types)[env.curriculum.kind]
+        climb = np.isin(types, ["stairs_up", "stairs_down", "slope_up", "slope_down"])
+        c = env.commands.value
+        assert (env.commands.facing == climb).all()
+        assert (c[climb, 0] >= 0).all() and (c[climb, 1] == 0).all()
+        assert (c[~climb, 0] < 0).any() and (c[~climb, 1] != 0).any()
+        assert (c[climb, 2] < 0).any()  # the yaw rate keeps both signs
+    env.close()
+
+
+def test_commands_face_nothing_by_default():
+    env = make_env(64, terrain="stairs")
+    env.reset()
+    assert not env.cfg.commands.face_climb
+    assert (env.commands.value[:, 0] < 0).any()
     env.close()
 
 

@@ -80,6 +80,7 @@ PRESET_OPTIONS = (
     "terrain_mix",
     "init_level",
     "curriculum_rule",
+    "face_climb",
 )
 
 
@@ -253,6 +254,11 @@ def train(
         "walking under half the commanded distance), falls (down only after a fall) or uniform "
         "(every episode on a random level).",
     ),
+    face_climb: bool = typer.Option(
+        False,
+        "--face-climb/--no-face-climb",
+        help="On stairs and slopes, commands face the climb: forward only (|v_x|), no sideways speed.",
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -421,6 +427,7 @@ def train(
             ),
             init_level=init_level if "init_level" in given else base.init_level,
             curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
+            face_climb=face_climb if "face_climb" in given else base.face_climb,
         )
         cfg = run_config(
             chosen,
@@ -527,6 +534,7 @@ def _saved_values(cfg) -> dict:
         "terrain_mix": dict(e.terrain_mix),
         "init_level": e.max_init_level,
         "curriculum_rule": e.curriculum_rule,
+        "face_climb": e.commands.face_climb,
     }
 
 
@@ -674,6 +682,8 @@ def _terrain_summary(e) -> str:
         notes.append(f"starting on levels 0-{e.max_init_level}")
     if e.curriculum_rule != "distance":
         notes.append(f"curriculum rule {e.curriculum_rule}")
+    if e.commands.face_climb:
+        notes.append("commands facing the climb")
     return f" ({'; '.join(notes)})" if notes else ""
 
 

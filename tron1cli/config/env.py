@@ -16,12 +16,20 @@ def _check_range(name: str, lo_hi: tuple[float, float]) -> None:
         raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
 
 
+#: terrain groups (tron1cli.env.terrain.TERRAIN_GROUPS) whose commands face the climb with
+#: ``CommandConfig.face_climb``
+FACE_CLIMB_GROUPS: tuple[str, ...] = ("stairs", "slopes")
+
+
 @dataclass(frozen=True)
 class CommandConfig:
     """Velocity commands, sampled uniformly per env.
 
     lin_vel_x, lin_vel_y: m/s (base yaw frame); ang_vel_yaw: rad/s; resample_s: interval range (s)
-    between resamples; standing_share: fraction of commands that are exactly zero.
+    between resamples; standing_share: fraction of commands that are exactly zero; face_climb:
+    on stairs and slopes (:data:`FACE_CLIMB_GROUPS`) the command faces the climb: forward speed
+    drawn as |v_x| and no sideways speed (yaw rate as drawn), as the humanoid configs of Isaac Lab
+    command their rough-terrain robots.
     """
 
     lin_vel_x: tuple[float, float] = (-1.0, 1.0)
@@ -29,6 +37,7 @@ class CommandConfig:
     ang_vel_yaw: tuple[float, float] = (-0.5, 0.5)
     resample_s: tuple[float, float] = (4.0, 8.0)
     standing_share: float = 0.1
+    face_climb: bool = False
 
     def __post_init__(self) -> None:
         for name in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw", "resample_s"):

@@ -79,7 +79,8 @@ class TrainPreset:
     reward_settings: RewardConfig number -> value (``z_c``, ``gait_clearance_top_m``, ...);
     perception: heightmap and depth; randomization: Table III terms; pushes: random pushes;
     terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
-    on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform).
+    on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform);
+    face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``).
     """
 
     name: str
@@ -104,6 +105,7 @@ class TrainPreset:
     terrain_mix: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     init_level: int = 0
     curriculum_rule: str = "distance"
+    face_climb: bool = False
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:

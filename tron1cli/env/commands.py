@@ -14,11 +14,21 @@ class Commands:
         value: current command (N, 3): v_x, v_y, yaw rate.
         time_left: seconds until each env's next resample (N,).
         gait_freq: gait frequency (N,) in Hz; gait_phase: clock phase (N,) in [0, 1).
+        facing: (N,) bool, the envs whose commands face the climb (with ``cfg.face_climb``).
     """
 
-    def __init__(self, cfg: CommandConfig, num_envs: int, gait: GaitConfig | None = None) -> None:
+    def __init__(
+        self,
+        cfg: CommandConfig,
+        num_envs: int,
+        gait: GaitConfig | None = None,
+        facing: np.ndarray | None = None,
+    ) -> None:
         self.cfg = cfg
         self.gait = gait or GaitConfig()
+        self.facing = np.zeros(num_envs, dtype=bool) if facing is None else np.asarray(facing, dtype=bool)
+        if self.facing.shape != (num_envs,):
+            raise ValueError(f"facing must be ({num_envs},), got {self.facing.shape}")
         self.value = np.zeros((num_envs, 3))
         self.time_left = np.zeros(num_envs)
         self.gait_freq = np.full(num_envs, float(np.mean(self.gait.freq_hz)))
@@ -33,6 +43,10 @@ class Commands:
         lo = np.array([c.lin_vel_x[0], c.lin_vel_y[0], c.ang_vel_yaw[0]])
         hi = np.array([c.lin_vel_x[1], c.lin_vel_y[1], c.ang_vel_yaw[1]])
         cmd = rng.uniform(lo, hi, size=(k, 3))
+        if c.face_climb:
+            up = self.facing[ids]
+            cmd[up, 0] = np.abs(cmd[up, 0])
+            cmd[up, 1] = 0.0
         standing = rng.random(k) < c.standing_share
         cmd[standing] = 0.0
         self.value[ids] = cmd

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tron1cli.config.env import EnvConfig
+from tron1cli.config.env import FACE_CLIMB_GROUPS, EnvConfig
 from tron1cli.env import robot, sensors, terminations
 from tron1cli.env.commands import Commands
 from tron1cli.env.curriculum import EpisodeEnds, TerrainCurriculum
@@ -25,7 +25,13 @@ from tron1cli.env.randomization import Pusher, Randomizer
 from tron1cli.env.rewards import RewardConfig, RewardManager
 from tron1cli.env.scene import build_model
 from tron1cli.env.state import RobotState, read_state
-from tron1cli.env.terrain import TerrainBank, ground_height, highest_ground_height, mean_ground_height
+from tron1cli.env.terrain import (
+    TERRAIN_GROUPS,
+    TerrainBank,
+    ground_height,
+    highest_ground_height,
+    mean_ground_height,
+)
 
 EDGE_MARGIN_M = 0.5  #: an env whose base comes this close to its tile's edge ends its episode (time-out)
 
@@ -126,7 +132,9 @@ class Tron1Env:
         self._depth_clock = 0.0
         self.policy_dt = cfg.policy_dt
         self.max_episode_steps = cfg.max_episode_steps
-        self.commands = Commands(cfg.commands, self.n, cfg.gait)
+        climb_types = [t for g in FACE_CLIMB_GROUPS for t in TERRAIN_GROUPS[g]]
+        facing = np.isin(np.asarray(self.bank.types)[self.curriculum.kind], climb_types)
+        self.commands = Commands(cfg.commands, self.n, cfg.gait, facing=facing)
         if self.reward_cfg.clock_terms and not cfg.gait.enabled:
             raise ValueError("the reward has gait-schedule terms but the env's gait prior is off")
         self.rewards = RewardManager(self.reward_cfg, self.n, self.policy_dt)

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from tron1cli import __version__
-from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.config import CommandConfig, EnvConfig, GaitConfig
 from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
@@ -136,6 +136,7 @@ def run_config(
         terrain_mix=dict(preset.terrain_mix),
         max_init_level=preset.init_level,
         curriculum_rule=preset.curriculum_rule,
+        commands=CommandConfig(face_climb=preset.face_climb),
     )
     learner_cfg = replace(
         LearnerConfig(),
