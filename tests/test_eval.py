@@ -238,6 +238,34 @@ def test_eval_cli_json_and_outputs(tiny_ckpt, tmp_path):
     assert rows[0][2] == "yaw_radps" and [row[2] for row in rows[1:]] == ["0.25"]
 
 
+def test_randomisation_reports_the_terms_applied(tiny_ckpt):
+    """--randomize applies each policy's own training terms: a policy trained with none meets the
+    nominal robot, and the caption and the JSON say so instead of 'on'."""
+    from types import SimpleNamespace
+
+    from tron1cli.cli.evaluate import _randomisation
+
+    nominal = tron1("eval", str(tiny_ckpt), "--terrain", "flat", "--envs", "2", "--steps", "3")
+    assert nominal.returncode == 0, nominal.stderr
+    assert "randomisation on, but the policy trained with none: nominal robot" in " ".join(
+        nominal.stdout.split()
+    )
+    r = tron1("eval", str(tiny_ckpt), "--terrain", "flat", "--envs", "2", "--steps", "3", "--json")
+    assert json.loads(r.stdout)["protocol"]["randomization_terms"] == []
+
+    def trained_with(*terms):
+        return SimpleNamespace(
+            run_cfg=SimpleNamespace(env=SimpleNamespace(randomization=SimpleNamespace(terms=terms)))
+        )
+
+    assert _randomisation(True, [trained_with("kp", "delay"), trained_with("delay")]) == (
+        "on",
+        ["delay", "kp"],
+    )
+    assert _randomisation(False, [trained_with("kp")]) == ("off", None)
+    assert _randomisation(True, [trained_with()])[1] == []
+
+
 def test_push_test_cli_json(tiny_ckpt, tmp_path):
     r = tron1(
         "push-test", str(tiny_ckpt), "--terrain", "flat", "--envs", "14", "--json", "--out", str(tmp_path)

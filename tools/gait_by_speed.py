@@ -1,12 +1,13 @@
 """How does a teacher walk at a fixed forward speed on stairs up? Posture and feet, by speed.
 
 A lab tool, not a ``tron1`` command: for each commanded forward speed (m/s; no lateral or yaw
-command) it runs the climb probe's set-up (stairs up at one level, randomisation on, seed 0,
-128 envs) for 300 policy steps (6 s) and prints, over the envs still walking at each step:
-survival at the end, the forward speed walked (m/s), the risers climbed per env (the highest the
-ground under the base got above its spawn, in risers, rounded), the base's height above the
-ground under it (m; 0.81 with straight legs) and the swinging feet's clearance (m, foot-sphere
-centre above the ground under it, averaged over every step a foot is in the air).
+command) it runs the climb probe's set-up (stairs up at one level, the policy's own training
+randomisation, seed 0, 128 envs) for 300 policy steps (6 s) and prints, over the envs still
+walking at each step: survival at the end, the forward speed walked (m/s), the risers climbed
+per env (the highest the ground under the base got above its spawn, in risers, rounded), the
+base's height above the ground under it (m; 0.81 with straight legs) and the swinging feet's
+clearance (m, foot-sphere centre above the ground under it, averaged over every step a foot is
+in the air).
 
     python tools/gait_by_speed.py policies/runs/climb/checkpoints/latest.pt --level 9
 """

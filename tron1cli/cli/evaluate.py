@@ -183,7 +183,12 @@ def eval_cmd(
     steps: int = typer.Option(
         500, "--steps", min=1, help="Policy steps per batch (500 = 10 s, as the paper)."
     ),
-    randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
+    randomize: bool = typer.Option(
+        True,
+        "--randomize/--no-randomize",
+        help="The policy's own training randomisation (the Table III terms it trained with) on/off; "
+        "a policy trained without any meets the nominal robot either way.",
+    ),
     climb: bool = typer.Option(
         False,
         "--climb",
@@ -355,6 +360,7 @@ def eval_cmd(
             interrupted("eval", advance.done[0], total, target, out_dir)
 
     first = next(iter(next(iter(coverage.values())).values()))
+    rand_word, rand_terms = _randomisation(randomize, [p for ps in loaded.values() for p in ps])
     report = {
         "protocol": {
             "name": "full-window",
@@ -364,6 +370,7 @@ def eval_cmd(
             "steps": steps,
             "window_s": steps * next(iter(loaded.values()))[0].run_cfg.env.policy_dt,
             "randomize": randomize,
+            "randomization_terms": rand_terms,
             "seed": seed,
             "actor": actor,
             "gait_freq_hz": gait_freq,
@@ -396,7 +403,7 @@ def eval_cmd(
     table = Table(
         title="tron1 eval (Table I)",
         caption=f"{actor}s, level {level}, {envs} envs x {steps} steps, "
-        f"randomisation {'on' if randomize else 'off'}, "
+        f"randomisation {rand_word}, "
         + ("" if gait_freq is None else f"gait {gait_freq:g} Hz, ")
         + f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; "
         "success and traverse in %",
@@ -430,6 +437,18 @@ def eval_cmd(
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
     render_video(recorder)
+
+
+def _randomisation(randomize: bool, policies) -> tuple[str, list[str] | None]:
+    """The caption's word for the randomisation an eval applies, and its Table III terms for the
+    JSON (None when off): ``--randomize`` applies each policy's own training terms, so a policy
+    trained without any meets the nominal robot, and the caption says so."""
+    if not randomize:
+        return "off", None
+    terms = sorted({t for p in policies for t in p.run_cfg.env.randomization.terms})
+    if not terms:
+        return "on, but the policy trained with none: nominal robot", terms
+    return "on", terms
 
 
 def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, as_json, out_dir) -> None:
@@ -473,6 +492,7 @@ def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, 
             )
         except KeyboardInterrupt:
             interrupted("eval --climb", advance.done[0], total, None, out_dir)
+    rand_word, rand_terms = _randomisation(randomize, policies.values())
     report = {
         "protocol": {
             "name": "climb probe",
@@ -481,6 +501,7 @@ def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, 
             "envs": envs,
             "steps": steps,
             "randomize": randomize,
+            "randomization_terms": rand_terms,
             "seed": seed,
         },
         "policy": str(path),
@@ -494,7 +515,7 @@ def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, 
     table = Table(
         title=f"climb probe: {policy_label(path)}",
         caption=f"stairs up, {envs} envs x {steps} steps, training commands, randomisation "
-        f"{'on' if randomize else 'off'}, full window; success and traverse in %, progress: command "
+        f"{rand_word}, full window; success and traverse in %, progress: command "
         "progress, risers: climbed per env",
     )
     for col in ("actor", "level", "riser cm", "success", "traverse", "progress", "risers", "pitch°"):
@@ -614,7 +635,12 @@ def push_test(
         min=14,
         help="Envs per policy (1024, as the paper; spread over the 14 push types).",
     ),
-    randomize: bool = typer.Option(True, "--randomize/--no-randomize", help="Training randomisation on/off."),
+    randomize: bool = typer.Option(
+        True,
+        "--randomize/--no-randomize",
+        help="The policy's own training randomisation (the Table III terms it trained with) on/off; "
+        "a policy trained without any meets the nominal robot either way.",
+    ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the envs and the mixed pushes."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of tables."),
     out_dir: Path | None = typer.Option(
@@ -727,6 +753,7 @@ def push_test(
             "envs": envs,
             "seed": seed,
             "randomize": randomize,
+            "randomization_terms": _randomisation(randomize, [p for ps in loaded.values() for p in ps])[1],
         },
         "policies": {label: [str(p) for p in paths] for label, paths in groups.items()},
         "methods": {
