@@ -71,6 +71,36 @@ def test_the_uniform_rule_draws_every_level_whatever_the_episode():
     assert {lv for levels in levels_drawn(2) for lv in levels} == {0, 1, 2, 3}
 
 
+def test_a_level_floor_holds_its_type_up_and_leaves_the_others():
+    cfg = TerrainConfig(tile_size_m=2.0, num_levels=6, variants_per_level=1)
+    bank = TerrainBank(("flat", "stairs_up"), cfg, seed=0)
+    cur = TerrainCurriculum(bank, 6, np.random.default_rng(0), floors=[0, 3])
+    up = cur.kind == 1
+    assert (cur.level[up] == 3).all() and (cur.level[~up] == 0).all()  # started on the floor
+    fell = EpisodeEnds(distance=np.zeros(6), commanded=np.full(6, 10.0), fell=np.ones(6, bool))
+    cur.level[:] = 4
+    cur.update(np.arange(6), fell)
+    cur.update(np.arange(6), fell)  # two demotions: 4 -> 3 -> 3 on stairs up, 4 -> 2 on flat
+    assert (cur.level[up] == 3).all() and (cur.level[~up] == 2).all()
+    assert (bank.level[cur.tile] == cur.level).all()
+    cur.level[:] = 1  # levels restored from a run without the floor
+    cur.lift_to_floor()
+    assert (cur.level[up] == 3).all() and (cur.level[~up] == 1).all()
+    assert (bank.level[cur.tile[up]] == 3).all()
+
+
+@pytest.mark.parametrize(
+    "floor,text",
+    [
+        ({"lava": 3}, "'lava' is not a type of 'stairs'"),
+        ({"stairs_up": 10}, "stairs_up=10 is not a level in 0..9"),
+    ],
+)
+def test_a_bad_level_floor_is_refused(floor, text):
+    with pytest.raises(ValueError, match=text):
+        EnvConfig(terrain="stairs", level_floor=floor)
+
+
 def test_an_unknown_curriculum_rule_is_refused():
     with pytest.raises(ValueError, match="rule 'lava'; choose from distance, falls, uniform"):
         EnvConfig(terrain="stairs", curriculum_rule="lava")
@@ -228,6 +258,11 @@ def test_probe_options_refused(tiny_ckpt_vision, args, text):
         (["--terrain", "stairs", "--curriculum-rule", "lava"], "unknown curriculum rule 'lava'"),
         (["--terrain", "stairs", "--init-std", "0.4"], "--init-std sets the action std over --init's"),
         (["--terrain", "stairs", "--init-std", "0"], "Invalid value for '--init-std'"),
+        (["--terrain", "stairs", "--level-floor", "stairs_up=2.5"], "stairs_up=2.5 is not a whole level"),
+        (["--terrain", "stairs", "--level-floor", "stairs_up"], "--level-floor wants TYPE=LEVEL pairs"),
+        (["--terrain", "stairs", "--level-floor", "lava=1"], "'lava' is not a type of 'stairs'"),
+        (["--terrain", "stairs", "--swing-fold", "0.5"], "--swing-fold wants two angles HIP,KNEE"),
+        (["--terrain", "stairs", "--no-gait-prior", "--swing-fold", "0.5,0.8"], "needs the gait prior"),
     ],
 )
 def test_climb_training_options_refused(tmp_path, args, text):
@@ -238,18 +273,19 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     run = tmp_path / "mix"
     r = tron1(
         "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
-        "--face-climb", "--envs", "4", "--iterations", "1", "--steps-per-env", "2", "--hidden", "16",
+        "--face-climb", "--level-floor", "stairs_up=2", "--envs", "4", "--iterations", "1",
+        "--steps-per-env", "2", "--hidden", "16",
         "--run-dir", str(run),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     header = " ".join(r.stderr.split())
     assert (
-        "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; commands facing "
-        "the climb), 4 envs" in header
+        "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; level floor "
+        "stairs_up=2; commands facing the climb), 4 envs" in header
     )
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
-    assert saved["commands"]["face_climb"] is True
+    assert saved["commands"]["face_climb"] is True and saved["level_floor"] == {"stairs_up": 2}
     from tron1cli.evaluation.protocol import EvalSpec, make_env
     from tron1cli.policy.runtime import load_policy
 
@@ -259,6 +295,8 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
         EvalSpec("stairs_up", 9, 64, 2, True),
     )
     env.reset()
+    flat = make_env(load_policy(str(run / "checkpoints" / "latest.pt")), EvalSpec("flat", 0, 2, 2, True))
+    flat.close()  # a floor on stairs up does not stop the policy being evaluated on flat ground
     assert env.commands.facing.all() and (env.commands.value[:, 0] >= 0).all()
     assert (env.commands.value[:, 1] == 0).all()
     env.close()

@@ -100,6 +100,22 @@ def test_observer_builds_the_envs_observation():
         env.close()
 
 
+def test_the_robot_side_applies_the_contracts_swing_fold_at_the_clocks_phase():
+    from tron1cli.env.gait import leg_phases, swing_fold
+    from tron1cli.policy.contract import layout_of
+    from tron1cli.policy.runtime import load_policy
+
+    pol = load_policy(FLAT)
+    layout, pose = layout_of(pol.run_cfg), np.array(pol.contract["default_pose_rad"])
+    assert not Observer(layout, pose, 2.0, pol.contract["gait_clock"]).fold_offsets().any()
+    obs = Observer(layout, pose, 2.0, {"swing_fold_rad": [0.5, 0.8], "offset": 0.5, "stance": 0.5})
+    for _ in range(10):
+        want = swing_fold(leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8))[0]
+        np.testing.assert_allclose(obs.fold_offsets(), want)
+        obs.advance(np.zeros(6), 0.02)
+    assert obs.phase[0] == pytest.approx(0.4)
+
+
 def test_motors_are_mapped_by_name_not_position():
     joints = ["abad_L", "hip_L", "knee_L", "abad_R", "hip_R", "knee_R"]
     motors = ["knee_R_Joint", "abad_L_Joint", "hip_R_Joint", "knee_L_Joint", "abad_R_Joint", "hip_L_Joint"]

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from tron1cli.config import EnvConfig, GaitConfig
+from tron1cli.env import robot
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
+from tron1cli.env.gait import clock_observation, desired_contact, leg_phases, swing_fold
 from tron1cli.env.observations import ObsLayout
 from tron1cli.env.rewards import make_reward_config
 
@@ -113,3 +114,38 @@ def test_swing_clearance_is_measured_above_the_terrain_under_the_foot():
         np.testing.assert_allclose(TERMS["gait_swing_clearance"](env), 0.0, atol=1e-12)
     finally:
         env.close()
+
+
+def test_swing_fold_by_hand():
+    """Left leg at mid-swing, right in stance; then a quarter into the right leg's swing."""
+    off = swing_fold(np.array([[0.75, 0.25], [0.0, 0.625]]), 0.5, (0.5, 0.8))
+    assert off.shape == (2, robot.NUM_JOINTS)
+    np.testing.assert_allclose(off[0], [0.0, -0.5, 0.8, 0.0, 0.0, 0.0], atol=1e-12)
+    s = np.sin(np.pi * 0.25)  # swing progress 0.25 of the right leg
+    np.testing.assert_allclose(off[1], [0.0, 0.0, 0.0, 0.0, 0.5 * s, -0.8 * s], atol=1e-12)
+
+
+def test_the_swing_fold_lifts_the_foot_and_lands_in_the_targets():
+    """The fold's signs flex each leg within its joint range, and the env adds it to the targets
+    at the phase the policy saw."""
+    mid = swing_fold(np.array([[0.75, 0.75]]), 0.5, (0.6, 1.0))[0]
+    lo, hi = robot.JOINT_RANGES[:, 0], robot.JOINT_RANGES[:, 1]
+    assert np.all((mid >= lo) & (mid <= hi))
+    gait = GaitConfig(freq_hz=(2.0, 2.0), swing_fold_rad=(0.5, 0.8))
+    env = Tron1Env(EnvConfig(num_envs=4, gait=gait), make_reward_config(gait_prior=True))
+    env.reset()
+    for _ in range(8):
+        phase = env.commands.gait_phase.copy()
+        env.step(np.zeros((4, 6)))
+        want = robot.DEFAULT_POSE + swing_fold(leg_phases(phase, 0.5), 0.5, (0.5, 0.8))
+        np.testing.assert_allclose(env.targets, want)
+    assert np.abs(env.targets).max() > 0.1  # some leg swung within 8 steps at 2 Hz
+    env.close()
+
+
+@pytest.mark.parametrize("fold", [(0.5,), (0.5, float("nan"))])
+def test_a_bad_swing_fold_is_refused(fold):
+    with pytest.raises(ValueError, match="two finite angles"):
+        GaitConfig(swing_fold_rad=fold)
+    with pytest.raises(ValueError, match="needs the gait prior"):
+        GaitConfig(enabled=False, swing_fold_rad=(0.5, 0.8))

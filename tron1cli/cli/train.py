@@ -81,6 +81,8 @@ PRESET_OPTIONS = (
     "init_level",
     "curriculum_rule",
     "face_climb",
+    "level_floor",
+    "swing_fold",
 )
 
 
@@ -253,6 +255,21 @@ def train(
         help="How terrain levels move at episode ends: distance (up after walking far, down after "
         "walking under half the commanded distance), falls (down only after a fall) or uniform "
         "(every episode on a random level).",
+    ),
+    level_floor: str = typer.Option(
+        "",
+        "--level-floor",
+        metavar="TYPE=LEVEL,...",
+        help="Lowest terrain level per type, e.g. stairs_up=3: its envs start on it or above and "
+        "are never moved below it [default: 0].",
+    ),
+    swing_fold: str = typer.Option(
+        "0,0",
+        "--swing-fold",
+        metavar="HIP,KNEE",
+        help="Hip and knee flexion (rad) the gait clock adds to a swinging leg's joint targets at "
+        "mid-swing, e.g. 0.5,0.8: the feet rise without the policy asking (ours, not the paper's; "
+        "needs the gait prior; carried by the ONNX contract).",
     ),
     face_climb: bool = typer.Option(
         False,
@@ -428,6 +445,10 @@ def train(
             init_level=init_level if "init_level" in given else base.init_level,
             curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
             face_climb=face_climb if "face_climb" in given else base.face_climb,
+            swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
+            level_floor=MappingProxyType(
+                _parse_levels(level_floor) if "level_floor" in given else base.level_floor
+            ),
         )
         cfg = run_config(
             chosen,
@@ -535,6 +556,8 @@ def _saved_values(cfg) -> dict:
         "init_level": e.max_init_level,
         "curriculum_rule": e.curriculum_rule,
         "face_climb": e.commands.face_climb,
+        "level_floor": dict(e.level_floor),
+        "swing_fold": tuple(e.gait.swing_fold_rad),
     }
 
 
@@ -547,6 +570,10 @@ def _as_saved(name: str, value):
             return {k: v for k, v in _pairs(value).items() if v != 1.0}
         if name in ("reward_weights", "reward_settings", "terrain_mix"):
             return _pairs(value)
+        if name == "level_floor":
+            return _parse_levels(value)
+        if name == "swing_fold":
+            return _parse_fold(value)
         if name == "reward_ramps":
             return _ramps(value)
         if name == "randomize_skip":
@@ -673,8 +700,34 @@ def _parse_weights(text: str, option: str, key: str) -> dict[str, float]:
     return weights
 
 
+def _parse_levels(text: str) -> dict[str, int]:
+    """``--level-floor``'s ``TYPE=LEVEL,...`` -> {type: level}; ValueError, one line, otherwise
+    (the types and the range of the levels are checked against the terrain by EnvConfig)."""
+    try:
+        pairs = _pairs(text)
+    except ValueError:
+        pairs = {}
+    if not pairs:
+        raise ValueError(f"--level-floor wants TYPE=LEVEL pairs separated by commas, got '{text}'")
+    bad = [k for k, v in pairs.items() if v != int(v)]
+    if bad:
+        raise ValueError(f"--level-floor: {bad[0]}={pairs[bad[0]]:g} is not a whole level")
+    return {k: int(v) for k, v in pairs.items()}
+
+
+def _parse_fold(text: str) -> tuple[float, float]:
+    """``--swing-fold``'s ``HIP,KNEE`` -> (hip, knee) rad; ValueError, one line, otherwise."""
+    try:
+        fold = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        fold = ()
+    if len(fold) != 2 or not all(math.isfinite(x) for x in fold):
+        raise ValueError(f"--swing-fold wants two angles HIP,KNEE in rad, e.g. 0.5,0.8, got '{text}'")
+    return fold
+
+
 def _terrain_summary(e) -> str:
-    """The header's note on a run's terrain options where they are not the defaults."""
+    """The header's note on a run's terrain, command and gait options where they are not the defaults."""
     notes = []
     if e.terrain_mix:
         notes.append("mix " + ", ".join(f"{k}={v:g}" for k, v in e.terrain_mix.items()))
@@ -682,8 +735,12 @@ def _terrain_summary(e) -> str:
         notes.append(f"starting on levels 0-{e.max_init_level}")
     if e.curriculum_rule != "distance":
         notes.append(f"curriculum rule {e.curriculum_rule}")
+    if e.level_floor:
+        notes.append("level floor " + ", ".join(f"{k}={v}" for k, v in e.level_floor.items()))
     if e.commands.face_climb:
         notes.append("commands facing the climb")
+    if any(e.gait.swing_fold_rad):
+        notes.append("swing fold hip {:g}, knee {:g} rad".format(*e.gait.swing_fold_rad))
     return f" ({'; '.join(notes)})" if notes else ""
 
 

@@ -101,7 +101,9 @@ class GaitConfig:
 
     enabled: clock in o_t and e_t plus the contact-schedule reward terms; freq_hz: range of the
     gait frequency, sampled with each velocity command; offset: right leg's phase lag (periods);
-    stance: stance fraction of the period; width: smoothing of the schedule's edges (periods).
+    stance: stance fraction of the period; width: smoothing of the schedule's edges (periods);
+    swing_fold_rad: (hip, knee) flexion added to a swinging leg's joint targets at mid-swing (rad;
+    (0, 0): none; tron1cli.env.gait.swing_fold).
     """
 
     enabled: bool = True
@@ -109,9 +111,15 @@ class GaitConfig:
     offset: float = 0.5
     stance: float = 0.5
     width: float = 0.04
+    swing_fold_rad: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         _check_range("freq_hz", self.freq_hz)
+        fold = self.swing_fold_rad
+        if len(fold) != 2 or not all(isinstance(x, int | float) and math.isfinite(x) for x in fold):
+            raise ValueError(f"swing fold wants two finite angles (hip, knee) in rad, got {fold}")
+        if any(fold) and not self.enabled:
+            raise ValueError("a swing fold needs the gait prior (its clock says when a leg swings)")
         if self.freq_hz[0] <= 0:
             raise ValueError("gait frequencies must be positive")
         if not 0.0 < self.stance < 1.0:
@@ -144,7 +152,8 @@ class EnvConfig:
     stacked into o^H_t; nthread: physics threads; seed: master seed of every random stream;
     terrain_mix: terrain type -> share of the envs (types of ``terrain`` left out get none; empty:
     equal shares); max_init_level: envs start on levels 0..max_init_level; curriculum_rule: how
-    levels move (tron1cli.env.curriculum.RULES: distance, falls, uniform).
+    levels move (tron1cli.env.curriculum.RULES: distance, falls, uniform); level_floor: terrain
+    type -> the lowest level its envs start on or move down to (missing: 0).
     """
 
     num_envs: int = 1024
@@ -159,6 +168,7 @@ class EnvConfig:
     max_init_level: int = 0
     terrain_mix: dict[str, float] = field(default_factory=dict)
     curriculum_rule: str = "distance"
+    level_floor: dict[str, int] = field(default_factory=dict)
     perception: bool = False
     depth_hz: float = 30.0
     depth_from: int = 0
@@ -186,6 +196,8 @@ class EnvConfig:
         if self.terrain_mix:
             self.type_shares()
         rule_named(self.curriculum_rule)
+        if self.level_floor:
+            self.type_floors()
 
     def type_shares(self) -> list[float] | None:
         """Share of the envs per type of ``terrain`` (in bank order) from ``terrain_mix``, or None
@@ -205,6 +217,22 @@ class EnvConfig:
         if sum(shares) <= 0:
             raise ValueError("terrain mix: every share is 0")
         return shares
+
+    def type_floors(self) -> list[int] | None:
+        """Lowest level per type of ``terrain`` (in bank order) from ``level_floor``, or None for
+        none; ValueError for a type outside ``terrain`` or a level outside 0..num_levels - 1."""
+        if not self.level_floor:
+            return None
+        types = resolve_terrain(self.terrain)
+        top = self.terrain_cfg.num_levels - 1
+        for name, lv in self.level_floor.items():
+            if name not in types:
+                raise ValueError(
+                    f"level floor: '{name}' is not a type of '{self.terrain}' ({', '.join(types)})"
+                )
+            if isinstance(lv, bool) or not isinstance(lv, int | float) or lv != int(lv) or not 0 <= lv <= top:
+                raise ValueError(f"level floor: {name}={lv} is not a level in 0..{top}")
+        return [int(self.level_floor.get(t, 0)) for t in types]
 
     @property
     def policy_dt(self) -> float:

@@ -80,7 +80,9 @@ class TrainPreset:
     perception: heightmap and depth; randomization: Table III terms; pushes: random pushes;
     terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
     on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform);
-    face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``).
+    face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``);
+    level_floor: terrain type -> lowest level its envs start on or move down to;
+    swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``).
     """
 
     name: str
@@ -106,6 +108,8 @@ class TrainPreset:
     init_level: int = 0
     curriculum_rule: str = "distance"
     face_climb: bool = False
+    level_floor: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    swing_fold: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:

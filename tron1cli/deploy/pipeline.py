@@ -212,6 +212,7 @@ class DeploySim:
             decimation=decimation,
             terrain=cfg.terrain,
             terrain_mix={},
+            level_floor={},
             curriculum=False,
             depth_from=1,  # the env renders no depth itself: the depth thread does
             randomization=base.randomization if cfg.randomize else RandomizationConfig(),

@@ -37,7 +37,7 @@ import numpy as np
 from tron1cli.deploy.schedule import CommandSchedule
 from tron1cli.env import robot
 from tron1cli.env.core import ACTION_CLIP
-from tron1cli.env.gait import clock_observation
+from tron1cli.env.gait import clock_observation, leg_phases, swing_fold
 from tron1cli.env.math3d import quat_rotate_inverse
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
 from tron1cli.errors import Tron1Error, UsageError
@@ -65,7 +65,13 @@ def map_motors(joint_names: list[str], motor_names: list[str], where: str) -> np
 class Observer:
     """The student's observation from SDK messages, by the env's own code (module docstring)."""
 
-    def __init__(self, layout: ObsLayout, default_pose: np.ndarray, gait_freq_hz: float) -> None:
+    def __init__(
+        self, layout: ObsLayout, default_pose: np.ndarray, gait_freq_hz: float, gait_clock: dict | None = None
+    ) -> None:
+        """``gait_clock``: the contract's ``gait_clock`` object (its swing fold, offset and stance)."""
+        gc = gait_clock or {}
+        self.fold = tuple(float(x) for x in gc.get("swing_fold_rad", (0.0, 0.0)))
+        self.offset, self.stance = float(gc.get("offset", 0.5)), float(gc.get("stance", 0.5))
         self.layout = layout
         self.default_pose = np.asarray(default_pose, dtype=float)
         self.freq = np.array([gait_freq_hz])
@@ -94,6 +100,12 @@ class Observer:
         push_history(self.hist, proprio, None if self.started else np.zeros(1, dtype=np.int64))
         self.started = True
         return self.hist.reshape(1, -1).copy()
+
+    def fold_offsets(self) -> np.ndarray:
+        """Joint-target offsets (6,) rad of the swing fold at the clock's phase (zeros without one)."""
+        if not any(self.fold):
+            return np.zeros(len(self.default_pose))
+        return swing_fold(leg_phases(self.phase, self.offset), self.stance, self.fold)[0]
 
     def advance(self, action: np.ndarray, dt: float) -> np.ndarray:
         """Record the applied action (clipped as in the env) and tick the clock by ``dt`` (s);
@@ -177,7 +189,7 @@ class RobotController:
             freq = policy.run_cfg.env.gait.deployed_hz(cfg.gait_freq_hz)
         except ValueError as e:
             raise UsageError(f"--gait-freq: {e}") from None
-        self.observer = Observer(layout, self.default, freq)
+        self.observer = Observer(layout, self.default, freq, c.get("gait_clock"))
         cmds = policy.run_cfg.env.commands
         self.cmd_max = np.array(
             [max(map(abs, cmds.lin_vel_x)), max(map(abs, cmds.lin_vel_y)), max(map(abs, cmds.ang_vel_yaw))]
@@ -313,8 +325,9 @@ class RobotController:
                 self.policy_ms.append(1e3 * (time.perf_counter() - t0))
                 if not np.all(np.isfinite(action)):
                     raise Trip("non-finite", "the policy returned a non-finite action")
+                fold = self.observer.fold_offsets()  # at the phase this action was computed for
                 a = self.observer.advance(action[0], dt)
-                q_des = np.clip(self.default + self.scale * a, self.ranges[:, 0], self.ranges[:, 1])
+                q_des = np.clip(self.default + self.scale * a + fold, self.ranges[:, 0], self.ranges[:, 1])
                 self._send(q_des, self.kp, self.kd)
                 self.latency_ms.append(1e3 * (time.perf_counter() - st.t))
                 steps += 1

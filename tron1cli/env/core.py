@@ -1,6 +1,7 @@
 """The batched TRON1 environment: actions in, observation groups, rewards and episode ends out.
 
-One step: action (N, 6) -> joint targets = default pose + 0.25 action -> PD inside MuJoCo
+One step: action (N, 6) -> joint targets = default pose + 0.25 action (+ the gait's swing fold,
+when set) -> PD inside MuJoCo
 (position actuators, Kp 40, Kd 2.5, torque clipped to 80 N m) for ``decimation`` physics steps ->
 robot state -> terminations -> rewards -> commands -> resets -> observations.
 """
@@ -16,7 +17,7 @@ from tron1cli.config.env import FACE_CLIMB_GROUPS, EnvConfig
 from tron1cli.env import robot, sensors, terminations
 from tron1cli.env.commands import Commands
 from tron1cli.env.curriculum import EpisodeEnds, TerrainCurriculum
-from tron1cli.env.gait import clock_observation, desired_contact, leg_phases
+from tron1cli.env.gait import clock_observation, desired_contact, leg_phases, swing_fold
 from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
@@ -93,6 +94,7 @@ class Tron1Env:
             enabled=cfg.curriculum,
             shares=cfg.type_shares(),
             rule=cfg.curriculum_rule,
+            floors=cfg.type_floors(),
         )
         self.model = build_model(cfg.sim_dt, self.bank)
         if self.model.nhfield or cfg.randomization.terms:
@@ -214,6 +216,10 @@ class Tron1Env:
         self.actions[:] = np.clip(actions, -ACTION_CLIP, ACTION_CLIP)
         self._prev_targets[:] = self.targets
         self.targets[:] = robot.DEFAULT_POSE + robot.ACTION_SCALE * self.actions
+        g = self.cfg.gait
+        if any(g.swing_fold_rad):  # at the phase the policy saw with this action
+            legs = leg_phases(self.commands.gait_phase, g.offset)
+            self.targets += swing_fold(legs, g.stance, g.swing_fold_rad)
         self._ctrl[:] = self.targets[:, None, :]
         late = np.arange(self.cfg.decimation)[None, :] < self.randomizer.delay_steps[:, None]
         if late.any():  # system delay: the old target holds until the new one arrives
@@ -305,7 +311,8 @@ class Tron1Env:
         return {"level": self.curriculum.level.copy(), "tile": self.curriculum.tile.copy()}
 
     def restore_curriculum(self, state: dict[str, np.ndarray]) -> None:
-        """Put every env back on the level and tile of :meth:`curriculum_state`; call before reset.
+        """Put every env back on the level and tile of :meth:`curriculum_state` (those below this
+        env's level floor up to it, on a new tile); call before reset.
 
         ValueError when the state is of another env count or names tiles outside this bank."""
         level, tile = np.asarray(state["level"]), np.asarray(state["tile"])
@@ -317,6 +324,7 @@ class Tron1Env:
             raise ValueError("curriculum state puts envs on another terrain type or level than it names")
         self.curriculum.level[:] = level
         self.curriculum.tile[:] = tile
+        self.curriculum.lift_to_floor()
         self._apply_tiles(np.arange(self.n))
 
     def ground_height(self, xy: np.ndarray) -> np.ndarray:

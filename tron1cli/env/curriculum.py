@@ -9,7 +9,7 @@ variant tile whenever its level changes. How the level moves is the rule (:data:
 - ``falls``: up as ``distance``; down only after a fall, so a slow survivor keeps its level.
 - ``uniform``: no curriculum; every episode draws its level uniformly from all levels.
 
-Levels stay within 0..num_levels - 1.
+Levels stay within floor..num_levels - 1, the floor per terrain type (0 unless set).
 """
 
 from __future__ import annotations
@@ -85,7 +85,8 @@ class TerrainCurriculum:
     down_share: fraction of the commanded distance below which an env moves down;
     max_init_level: envs start on levels 0..max_init_level;
     shares: share of the envs per bank type (None: equal shares);
-    rule: how levels move (a key of :data:`RULES`).
+    rule: how levels move (a key of :data:`RULES`);
+    floors: lowest level per bank type (None: 0 for every type); envs start and stay at or above it.
     """
 
     def __init__(
@@ -99,6 +100,7 @@ class TerrainCurriculum:
         enabled: bool = True,
         shares: np.ndarray | None = None,
         rule: str = "distance",
+        floors: list[int] | np.ndarray | None = None,
     ) -> None:
         self.rule = rule_named(rule)
         self.bank = bank
@@ -109,7 +111,9 @@ class TerrainCurriculum:
         self.down_share = down_share
         self.kind = deal_types(num_envs, np.ones(len(bank.types)) if shares is None else shares)
         top = min(max_init_level, self.num_levels - 1)
-        self.level = rng.integers(0, top + 1, num_envs)
+        per_type = np.zeros(len(bank.types), dtype=np.int64) if floors is None else np.asarray(floors)
+        self.floor = per_type[self.kind]
+        self.level = np.maximum(rng.integers(0, top + 1, num_envs), self.floor)
         self.tile = self._draw_tiles(np.arange(num_envs))
 
     def _draw_tiles(self, ids: np.ndarray) -> np.ndarray:
@@ -123,11 +127,18 @@ class TerrainCurriculum:
         """
         if not self.enabled or len(ids) == 0:
             return np.empty(0, dtype=np.int64)
-        new = np.clip(self.rule(self, self.level[ids], ends), 0, self.num_levels - 1)
+        new = np.clip(self.rule(self, self.level[ids], ends), self.floor[ids], self.num_levels - 1)
         changed = ids[new != self.level[ids]]
         self.level[ids] = new
         self.tile[changed] = self._draw_tiles(changed)
         return changed
+
+    def lift_to_floor(self) -> None:
+        """Move envs below their type's floor (levels restored from another run) up to it, on a
+        new tile."""
+        low = np.flatnonzero(self.level < self.floor)
+        self.level[low] = self.floor[low]
+        self.tile[low] = self._draw_tiles(low)
 
     def pin(self, level: int) -> None:
         """Put every env on ``level`` (negative: from the top, -1 = hardest) and stop moving them."""

@@ -212,6 +212,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         seed=spec.seed,
         terrain=spec.terrain,
         terrain_mix={},  # every env on the terrain under test
+        level_floor={},  # and on the level under test
         curriculum=False,
         depth_from=spec.num_envs if policy.actor == "teacher" else 0,  # a teacher needs no camera
         randomization=base.randomization if spec.randomize else RandomizationConfig(),

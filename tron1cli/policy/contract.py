@@ -68,6 +68,7 @@ def build_contract(run_cfg, gru_hidden: int, source: str) -> dict:
             "freq_hz": list(env.gait.freq_hz),
             "offset": env.gait.offset,
             "stance": env.gait.stance,
+            "swing_fold_rad": [float(x) for x in env.gait.swing_fold_rad],
         },
         "depth": None
         if layout.depth_hw is None
@@ -159,6 +160,9 @@ def _check_types(contract: Mapping, where: str) -> None:
             isinstance(gc["freq_hz"], list) and all(_is_number(x) for x in gc["freq_hz"])
         ):
             raise bad("gait_clock.freq_hz", "a list of numbers", gc["freq_hz"])
+        fold = gc.get("swing_fold_rad", [0.0, 0.0])
+        if not (isinstance(fold, list) and len(fold) == 2 and all(_is_number(x) for x in fold)):
+            raise bad("gait_clock.swing_fold_rad", "a list of two numbers", fold)
     depth = contract.get("depth")
     if depth is not None:
         if not isinstance(depth, dict):

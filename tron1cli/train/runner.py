@@ -128,7 +128,7 @@ def run_config(
         seed=seed,
         terrain=preset.terrain,
         nthread=nthread,
-        gait=GaitConfig(enabled=preset.gait_prior),
+        gait=GaitConfig(enabled=preset.gait_prior, swing_fold_rad=tuple(preset.swing_fold)),
         perception=preset.perception,
         depth_from=int(round(preset.num_envs * preset.teacher_ratio)),
         randomization=preset.randomization,
@@ -136,6 +136,7 @@ def run_config(
         terrain_mix=dict(preset.terrain_mix),
         max_init_level=preset.init_level,
         curriculum_rule=preset.curriculum_rule,
+        level_floor=dict(preset.level_floor),
         commands=CommandConfig(face_climb=preset.face_climb),
     )
     learner_cfg = replace(
