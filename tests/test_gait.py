@@ -6,7 +6,7 @@ import pytest
 from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.env import robot
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.gait import clock_observation, desired_contact, leg_phases, swing_fold
+from tron1cli.env.gait import FOLD_SHARE, clock_observation, desired_contact, leg_phases, swing_fold
 from tron1cli.env.observations import ObsLayout
 from tron1cli.env.rewards import make_reward_config
 
@@ -117,12 +117,14 @@ def test_swing_clearance_is_measured_above_the_terrain_under_the_foot():
 
 
 def test_swing_fold_by_hand():
-    """Left leg at mid-swing, right in stance; then a quarter into the right leg's swing."""
-    off = swing_fold(np.array([[0.75, 0.25], [0.0, 0.625]]), 0.5, (0.5, 0.8))
+    """Left leg at the fold's peak, right in stance; then the right leg a quarter into its swing
+    (progress 0.25 of the fold's 0.6) and the left leg late in its swing, past the fold."""
+    peak = 0.5 + 0.5 * FOLD_SHARE / 2  # leg phase at the fold's peak (stance 0.5)
+    off = swing_fold(np.array([[peak, 0.25], [0.9, 0.625]]), 0.5, (0.5, 0.8))
     assert off.shape == (2, robot.NUM_JOINTS)
     np.testing.assert_allclose(off[0], [0.0, -0.5, 0.8, 0.0, 0.0, 0.0], atol=1e-12)
-    s = np.sin(np.pi * 0.25)  # swing progress 0.25 of the right leg
-    np.testing.assert_allclose(off[1], [0.0, 0.0, 0.0, 0.0, 0.5 * s, -0.8 * s], atol=1e-12)
+    w = np.sin(np.pi * 0.25 / FOLD_SHARE)
+    np.testing.assert_allclose(off[1], [0.0, 0.0, 0.0, 0.0, 0.5 * w, -0.8 * w], atol=1e-12)
 
 
 def test_the_swing_fold_lifts_the_foot_and_lands_in_the_targets():

@@ -267,8 +267,8 @@ def train(
         "0,0",
         "--swing-fold",
         metavar="HIP,KNEE",
-        help="Hip and knee flexion (rad) the gait clock adds to a swinging leg's joint targets at "
-        "mid-swing, e.g. 0.5,0.8: the feet rise without the policy asking (ours, not the paper's; "
+        help="Hip and knee flexion (rad) the gait clock adds to a swinging leg's joint targets at the "
+        "top of the swing, e.g. 0.5,0.8: the feet rise without the policy asking (ours, not the paper's; "
         "needs the gait prior; carried by the ONNX contract).",
     ),
     face_climb: bool = typer.Option(

@@ -102,7 +102,7 @@ class GaitConfig:
     enabled: clock in o_t and e_t plus the contact-schedule reward terms; freq_hz: range of the
     gait frequency, sampled with each velocity command; offset: right leg's phase lag (periods);
     stance: stance fraction of the period; width: smoothing of the schedule's edges (periods);
-    swing_fold_rad: (hip, knee) flexion added to a swinging leg's joint targets at mid-swing (rad;
+    swing_fold_rad: (hip, knee) flexion added to a swinging leg's joint targets at its peak (rad;
     (0, 0): none; tron1cli.env.gait.swing_fold).
     """
 
