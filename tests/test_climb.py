@@ -94,6 +94,7 @@ def test_a_level_floor_holds_its_type_up_and_leaves_the_others():
     [
         ({"lava": 3}, "'lava' is not a type of 'stairs'"),
         ({"stairs_up": 10}, "stairs_up=10 is not a level in 0..9"),
+        ({"stairs_up": float("inf")}, "stairs_up=inf is not a level in 0..9"),
     ],
 )
 def test_a_bad_level_floor_is_refused(floor, text):
@@ -260,6 +261,8 @@ def test_probe_options_refused(tiny_ckpt_vision, args, text):
         (["--terrain", "stairs", "--init-std", "0"], "Invalid value for '--init-std'"),
         (["--terrain", "stairs", "--level-floor", "stairs_up=2.5"], "stairs_up=2.5 is not a whole level"),
         (["--terrain", "stairs", "--level-floor", "stairs_up"], "--level-floor wants TYPE=LEVEL pairs"),
+        (["--terrain", "stairs", "--level-floor", "stairs_up=inf"], "stairs_up=inf is not a whole level"),
+        (["--terrain", "stairs", "--level-floor", "stairs_up=nan"], "stairs_up=nan is not a whole level"),
         (["--terrain", "stairs", "--level-floor", "lava=1"], "'lava' is not a type of 'stairs'"),
         (["--terrain", "stairs", "--swing-fold", "0.5"], "--swing-fold wants two angles HIP,KNEE"),
         (["--terrain", "stairs", "--no-gait-prior", "--swing-fold", "0.5,0.8"], "needs the gait prior"),

@@ -100,15 +100,16 @@ def test_observer_builds_the_envs_observation():
         env.close()
 
 
-def test_the_robot_side_applies_the_contracts_swing_fold_at_the_clocks_phase():
+def test_the_robot_side_applies_the_policys_swing_fold_at_the_clocks_phase():
+    from tron1cli.config.env import GaitConfig
     from tron1cli.env.gait import leg_phases, swing_fold
     from tron1cli.policy.contract import layout_of
     from tron1cli.policy.runtime import load_policy
 
     pol = load_policy(FLAT)
     layout, pose = layout_of(pol.run_cfg), np.array(pol.contract["default_pose_rad"])
-    assert not Observer(layout, pose, 2.0, pol.contract["gait_clock"]).fold_offsets().any()
-    obs = Observer(layout, pose, 2.0, {"swing_fold_rad": [0.5, 0.8], "offset": 0.5, "stance": 0.5})
+    assert not Observer(layout, pose, 2.0, pol.run_cfg.env.gait).fold_offsets().any()
+    obs = Observer(layout, pose, 2.0, GaitConfig(swing_fold_rad=(0.5, 0.8)))
     for _ in range(10):
         want = swing_fold(leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8))[0]
         np.testing.assert_allclose(obs.fold_offsets(), want)

@@ -709,7 +709,7 @@ def _parse_levels(text: str) -> dict[str, int]:
         pairs = {}
     if not pairs:
         raise ValueError(f"--level-floor wants TYPE=LEVEL pairs separated by commas, got '{text}'")
-    bad = [k for k, v in pairs.items() if v != int(v)]
+    bad = [k for k, v in pairs.items() if not math.isfinite(v) or v != int(v)]
     if bad:
         raise ValueError(f"--level-floor: {bad[0]}={pairs[bad[0]]:g} is not a whole level")
     return {k: int(v) for k, v in pairs.items()}

@@ -230,7 +230,8 @@ class EnvConfig:
                 raise ValueError(
                     f"level floor: '{name}' is not a type of '{self.terrain}' ({', '.join(types)})"
                 )
-            if isinstance(lv, bool) or not isinstance(lv, int | float) or lv != int(lv) or not 0 <= lv <= top:
+            number = isinstance(lv, int | float) and not isinstance(lv, bool) and math.isfinite(lv)
+            if not number or lv != int(lv) or not 0 <= lv <= top:
                 raise ValueError(f"level floor: {name}={lv} is not a level in 0..{top}")
         return [int(self.level_floor.get(t, 0)) for t in types]
 

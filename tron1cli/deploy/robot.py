@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tron1cli.config.env import GaitConfig
 from tron1cli.deploy.schedule import CommandSchedule
 from tron1cli.env import robot
 from tron1cli.env.core import ACTION_CLIP
@@ -66,12 +67,10 @@ class Observer:
     """The student's observation from SDK messages, by the env's own code (module docstring)."""
 
     def __init__(
-        self, layout: ObsLayout, default_pose: np.ndarray, gait_freq_hz: float, gait_clock: dict | None = None
+        self, layout: ObsLayout, default_pose: np.ndarray, gait_freq_hz: float, gait: GaitConfig | None = None
     ) -> None:
-        """``gait_clock``: the contract's ``gait_clock`` object (its swing fold, offset and stance)."""
-        gc = gait_clock or {}
-        self.fold = tuple(float(x) for x in gc.get("swing_fold_rad", (0.0, 0.0)))
-        self.offset, self.stance = float(gc.get("offset", 0.5)), float(gc.get("stance", 0.5))
+        """``gait``: the policy's gait prior (its swing fold, offset and stance; None: no fold)."""
+        self.gait = gait or GaitConfig()
         self.layout = layout
         self.default_pose = np.asarray(default_pose, dtype=float)
         self.freq = np.array([gait_freq_hz])
@@ -103,9 +102,10 @@ class Observer:
 
     def fold_offsets(self) -> np.ndarray:
         """Joint-target offsets (6,) rad of the swing fold at the clock's phase (zeros without one)."""
-        if not any(self.fold):
+        g = self.gait
+        if not any(g.swing_fold_rad):
             return np.zeros(len(self.default_pose))
-        return swing_fold(leg_phases(self.phase, self.offset), self.stance, self.fold)[0]
+        return swing_fold(leg_phases(self.phase, g.offset), g.stance, g.swing_fold_rad)[0]
 
     def advance(self, action: np.ndarray, dt: float) -> np.ndarray:
         """Record the applied action (clipped as in the env) and tick the clock by ``dt`` (s);
@@ -189,7 +189,7 @@ class RobotController:
             freq = policy.run_cfg.env.gait.deployed_hz(cfg.gait_freq_hz)
         except ValueError as e:
             raise UsageError(f"--gait-freq: {e}") from None
-        self.observer = Observer(layout, self.default, freq, c.get("gait_clock"))
+        self.observer = Observer(layout, self.default, freq, policy.run_cfg.env.gait)
         cmds = policy.run_cfg.env.commands
         self.cmd_max = np.array(
             [max(map(abs, cmds.lin_vel_x)), max(map(abs, cmds.lin_vel_y)), max(map(abs, cmds.ang_vel_yaw))]
