@@ -115,6 +115,7 @@ def test_a_symlink_loop_is_one_line(tmp_path, args, text):
         ({"run_config": {"learner": {"actor_hidden": 64}}}, "learner.actor_hidden should be a list"),
         ({"gait_clock": [1.5, 2.5]}, "gait_clock should be an object, got a list"),
         ({"gait_clock": {"swing_fold_rad": 0.5}}, "swing_fold_rad should be a list of two numbers"),
+        ({"gait_clock": {"swing_fold_keep": 1.5}}, "swing_fold_keep should be a number in [0, 1]"),
         ({"depth": 3}, "depth should be an object or null, got a number"),
         ({"default_pose_rad": 0.0}, "default_pose_rad must hold 6"),
         ({"kp_nm_per_rad": [40.0]}, "kp_nm_per_rad = [40.0] is not a finite positive number"),

@@ -102,17 +102,19 @@ def test_observer_builds_the_envs_observation():
 
 def test_the_robot_side_applies_the_policys_swing_fold_at_the_clocks_phase():
     from tron1cli.config.env import GaitConfig
-    from tron1cli.env.gait import leg_phases, swing_fold
+    from tron1cli.env.gait import fold_targets, leg_phases
     from tron1cli.policy.contract import layout_of
     from tron1cli.policy.runtime import load_policy
 
     pol = load_policy(FLAT)
     layout, pose = layout_of(pol.run_cfg), np.array(pol.contract["default_pose_rad"])
-    assert not Observer(layout, pose, 2.0, pol.run_cfg.env.gait).fold_offsets().any()
-    obs = Observer(layout, pose, 2.0, GaitConfig(swing_fold_rad=(0.5, 0.8)))
+    plain = Observer(layout, pose, 2.0, pol.run_cfg.env.gait)
+    np.testing.assert_array_equal(plain.folded(pose + 0.3, plain.phase), pose + 0.3)
+    obs = Observer(layout, pose, 2.0, GaitConfig(swing_fold_rad=(0.5, 0.8), swing_fold_keep=0.5))
+    unfold = pose + np.array([0.0, 0.6, -0.9, 0.0, -0.6, 0.9])
     for _ in range(10):
-        want = swing_fold(leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8))[0]
-        np.testing.assert_allclose(obs.fold_offsets(), want)
+        want = fold_targets(unfold[None], leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8), 0.5, pose)[0]
+        np.testing.assert_allclose(obs.folded(unfold, obs.phase), want)
         obs.advance(np.zeros(6), 0.02)
     assert obs.phase[0] == pytest.approx(0.4)
 

@@ -6,7 +6,14 @@ import pytest
 from tron1cli.config import EnvConfig, GaitConfig
 from tron1cli.env import robot
 from tron1cli.env.core import Tron1Env
-from tron1cli.env.gait import FOLD_SHARE, clock_observation, desired_contact, leg_phases, swing_fold
+from tron1cli.env.gait import (
+    FOLD_SHARE,
+    clock_observation,
+    desired_contact,
+    fold_targets,
+    leg_phases,
+    swing_fold,
+)
 from tron1cli.env.observations import ObsLayout
 from tron1cli.env.rewards import make_reward_config
 
@@ -143,6 +150,56 @@ def test_the_swing_fold_lifts_the_foot_and_lands_in_the_targets():
         np.testing.assert_allclose(env.targets, want)
     assert np.abs(env.targets).max() > 0.1  # some leg swung within 8 steps at 2 Hz
     env.close()
+
+
+def test_a_kept_fold_by_hand():
+    """Left leg at the fold's peak (hip -0.5, knee +0.8), right leg in stance. Keeping 0.75 of the
+    fold holds the left flexion at least 0.375 / 0.6 rad however the action unfolds it; flexion
+    the action adds stays, and the stance leg is the action's alone."""
+    peak = 0.5 + 0.5 * FOLD_SHARE / 2
+    legs = np.array([[peak, 0.25]] * 2)
+    d = robot.DEFAULT_POSE
+    unfold = d + np.array([[0.1, 0.4, -0.7, 0.2, -0.9, 0.9], [0.0, -0.2, 0.3, 0.0, 0.0, 0.0]])
+    out = fold_targets(unfold, legs, 0.5, (0.5, 0.8), 0.75, d)
+    np.testing.assert_allclose(out[0] - d, [0.1, -0.375, 0.6, 0.2, -0.9, 0.9], atol=1e-12)
+    np.testing.assert_allclose(out[1] - d, [0.0, -0.7, 1.1, 0.0, 0.0, 0.0], atol=1e-12)  # more flexion
+    free = fold_targets(unfold, legs, 0.5, (0.5, 0.8), 0.0, d)
+    np.testing.assert_allclose(free, unfold + swing_fold(legs, 0.5, (0.5, 0.8)))
+
+
+def test_the_env_keeps_the_fold_against_an_unfolding_action():
+    gait = GaitConfig(freq_hz=(2.0, 2.0), swing_fold_rad=(0.5, 0.8), swing_fold_keep=0.5)
+    env = Tron1Env(EnvConfig(num_envs=4, gait=gait), make_reward_config(gait_prior=True))
+    env.reset()
+    act = np.tile([0.0, 4.0, -4.0, 0.0, -4.0, 4.0], (4, 1))  # hip and knee as far from flexion as allowed
+    held = 0
+    for _ in range(8):
+        phase = env.commands.gait_phase.copy()
+        env.step(act)
+        legs = leg_phases(phase, 0.5)
+        want = fold_targets(
+            robot.DEFAULT_POSE + robot.ACTION_SCALE * env.actions,
+            legs,
+            0.5,
+            (0.5, 0.8),
+            0.5,
+            robot.DEFAULT_POSE,
+        )
+        np.testing.assert_allclose(env.targets, want)
+        off = swing_fold(legs, 0.5, (0.5, 0.8))
+        flex = np.sign(off) * (env.targets - robot.DEFAULT_POSE)
+        assert np.all(flex[off != 0] >= 0.5 * np.abs(off[off != 0]) - 1e-12)
+        held += int((off != 0).any())
+    assert held > 0  # some leg was in its fold within 8 steps at 2 Hz
+    env.close()
+
+
+@pytest.mark.parametrize("keep", [-0.1, 1.5, float("nan")])
+def test_a_bad_kept_share_is_refused(keep):
+    with pytest.raises(ValueError, match="must lie in"):
+        GaitConfig(swing_fold_rad=(0.5, 0.8), swing_fold_keep=keep)
+    with pytest.raises(ValueError, match="needs a swing fold"):
+        GaitConfig(swing_fold_keep=0.5)
 
 
 @pytest.mark.parametrize("fold", [(0.5,), (0.5, float("nan"))])

@@ -33,6 +33,7 @@ def test_export_parity_and_contract(vision_onnx, tiny_ckpt_vision):
     assert meta["obs_layout"]["sizes"]["heightmap"] == 441 and meta["depth"]["rows"] == 60
     assert meta["gait_clock"]["enabled"] and meta["source_checkpoint"] == str(tiny_ckpt_vision)
     assert meta["gait_clock"]["swing_fold_rad"] == [0.0, 0.0]  # an action means what it did without one
+    assert meta["gait_clock"]["swing_fold_keep"] == 0.0
     assert [i.name for i in model.graph.input] == list(pc.INPUTS)
 
 

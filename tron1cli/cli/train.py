@@ -83,6 +83,7 @@ PRESET_OPTIONS = (
     "face_climb",
     "level_floor",
     "swing_fold",
+    "swing_fold_keep",
 )
 
 
@@ -271,6 +272,14 @@ def train(
         "top of the swing, e.g. 0.5,0.8: the feet rise without the policy asking (ours, not the paper's; "
         "needs the gait prior; carried by the ONNX contract).",
     ),
+    swing_fold_keep: float = typer.Option(
+        0.0,
+        "--swing-fold-keep",
+        metavar="SHARE",
+        help="Share of the swing fold the policy's action cannot take away, in [0, 1], e.g. 0.75: "
+        "a folded hip or knee keeps at least that share of the fold's flexion (0: the policy may "
+        "undo it all; needs --swing-fold).",
+    ),
     face_climb: bool = typer.Option(
         False,
         "--face-climb/--no-face-climb",
@@ -446,6 +455,7 @@ def train(
             curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
             face_climb=face_climb if "face_climb" in given else base.face_climb,
             swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
+            swing_fold_keep=swing_fold_keep if "swing_fold_keep" in given else base.swing_fold_keep,
             level_floor=MappingProxyType(
                 _parse_levels(level_floor) if "level_floor" in given else base.level_floor
             ),
@@ -558,6 +568,7 @@ def _saved_values(cfg) -> dict:
         "face_climb": e.commands.face_climb,
         "level_floor": dict(e.level_floor),
         "swing_fold": tuple(e.gait.swing_fold_rad),
+        "swing_fold_keep": e.gait.swing_fold_keep,
     }
 
 
@@ -741,6 +752,8 @@ def _terrain_summary(e) -> str:
         notes.append("commands facing the climb")
     if any(e.gait.swing_fold_rad):
         notes.append("swing fold hip {:g}, knee {:g} rad".format(*e.gait.swing_fold_rad))
+    if e.gait.swing_fold_keep:
+        notes.append(f"{e.gait.swing_fold_keep:g} of the fold kept")
     return f" ({'; '.join(notes)})" if notes else ""
 
 

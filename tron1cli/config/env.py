@@ -103,7 +103,8 @@ class GaitConfig:
     gait frequency, sampled with each velocity command; offset: right leg's phase lag (periods);
     stance: stance fraction of the period; width: smoothing of the schedule's edges (periods);
     swing_fold_rad: (hip, knee) flexion added to a swinging leg's joint targets at its peak (rad;
-    (0, 0): none; tron1cli.env.gait.swing_fold).
+    (0, 0): none; tron1cli.env.gait.swing_fold); swing_fold_keep: the share of the fold the
+    action cannot take away (0: none, the policy may undo it all; tron1cli.env.gait.fold_targets).
     """
 
     enabled: bool = True
@@ -112,6 +113,7 @@ class GaitConfig:
     stance: float = 0.5
     width: float = 0.04
     swing_fold_rad: tuple[float, float] = (0.0, 0.0)
+    swing_fold_keep: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("freq_hz", self.freq_hz)
@@ -120,6 +122,11 @@ class GaitConfig:
             raise ValueError(f"swing fold wants two finite angles (hip, knee) in rad, got {fold}")
         if any(fold) and not self.enabled:
             raise ValueError("a swing fold needs the gait prior (its clock says when a leg swings)")
+        keep = self.swing_fold_keep
+        if not (isinstance(keep, int | float) and 0.0 <= keep <= 1.0):
+            raise ValueError(f"the swing fold's kept share must lie in [0, 1], got {keep}")
+        if keep and not any(fold):
+            raise ValueError("a kept share of the swing fold needs a swing fold")
         if self.freq_hz[0] <= 0:
             raise ValueError("gait frequencies must be positive")
         if not 0.0 < self.stance < 1.0:

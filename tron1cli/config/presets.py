@@ -82,7 +82,8 @@ class TrainPreset:
     on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform);
     face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``);
     level_floor: terrain type -> lowest level its envs start on or move down to;
-    swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``).
+    swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``);
+    swing_fold_keep: the share of it the action cannot take away (``GaitConfig.swing_fold_keep``).
     """
 
     name: str
@@ -110,6 +111,7 @@ class TrainPreset:
     face_climb: bool = False
     level_floor: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     swing_fold: tuple[float, float] = (0.0, 0.0)
+    swing_fold_keep: float = 0.0
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:

@@ -38,7 +38,7 @@ from tron1cli.config.env import GaitConfig
 from tron1cli.deploy.schedule import CommandSchedule
 from tron1cli.env import robot
 from tron1cli.env.core import ACTION_CLIP
-from tron1cli.env.gait import clock_observation, leg_phases, swing_fold
+from tron1cli.env.gait import clock_observation, fold_targets, leg_phases
 from tron1cli.env.math3d import quat_rotate_inverse
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
 from tron1cli.errors import Tron1Error, UsageError
@@ -100,12 +100,17 @@ class Observer:
         self.started = True
         return self.hist.reshape(1, -1).copy()
 
-    def fold_offsets(self) -> np.ndarray:
-        """Joint-target offsets (6,) rad of the swing fold at the clock's phase (zeros without one)."""
+    def folded(self, targets: np.ndarray, phase: np.ndarray) -> np.ndarray:
+        """Joint targets (6,) rad with the swing fold at clock ``phase`` (1,), as the env applies
+        it (``targets`` unchanged without one)."""
         g = self.gait
         if not any(g.swing_fold_rad):
-            return np.zeros(len(self.default_pose))
-        return swing_fold(leg_phases(self.phase, g.offset), g.stance, g.swing_fold_rad)[0]
+            return targets
+        legs = leg_phases(phase, g.offset)
+        folded = fold_targets(
+            targets[None], legs, g.stance, g.swing_fold_rad, g.swing_fold_keep, self.default_pose
+        )
+        return folded[0]
 
     def advance(self, action: np.ndarray, dt: float) -> np.ndarray:
         """Record the applied action (clipped as in the env) and tick the clock by ``dt`` (s);
@@ -325,9 +330,10 @@ class RobotController:
                 self.policy_ms.append(1e3 * (time.perf_counter() - t0))
                 if not np.all(np.isfinite(action)):
                     raise Trip("non-finite", "the policy returned a non-finite action")
-                fold = self.observer.fold_offsets()  # at the phase this action was computed for
+                phase = self.observer.phase  # the phase this action was computed for (advance replaces it)
                 a = self.observer.advance(action[0], dt)
-                q_des = np.clip(self.default + self.scale * a + fold, self.ranges[:, 0], self.ranges[:, 1])
+                q_des = self.observer.folded(self.default + self.scale * a, phase)
+                q_des = np.clip(q_des, self.ranges[:, 0], self.ranges[:, 1])
                 self._send(q_des, self.kp, self.kd)
                 self.latency_ms.append(1e3 * (time.perf_counter() - st.t))
                 steps += 1

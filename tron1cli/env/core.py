@@ -17,7 +17,7 @@ from tron1cli.config.env import FACE_CLIMB_GROUPS, EnvConfig
 from tron1cli.env import robot, sensors, terminations
 from tron1cli.env.commands import Commands
 from tron1cli.env.curriculum import EpisodeEnds, TerrainCurriculum
-from tron1cli.env.gait import clock_observation, desired_contact, leg_phases, swing_fold
+from tron1cli.env.gait import clock_observation, desired_contact, fold_targets, leg_phases
 from tron1cli.env.lipm import LipmTracker
 from tron1cli.env.math3d import quat_from_euler, quat_to_mat, rotate_z, yaw_of
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
@@ -219,7 +219,9 @@ class Tron1Env:
         g = self.cfg.gait
         if any(g.swing_fold_rad):  # at the phase the policy saw with this action
             legs = leg_phases(self.commands.gait_phase, g.offset)
-            self.targets += swing_fold(legs, g.stance, g.swing_fold_rad)
+            self.targets[:] = fold_targets(
+                self.targets, legs, g.stance, g.swing_fold_rad, g.swing_fold_keep, robot.DEFAULT_POSE
+            )
         self._ctrl[:] = self.targets[:, None, :]
         late = np.arange(self.cfg.decimation)[None, :] < self.randomizer.delay_steps[:, None]
         if late.any():  # system delay: the old target holds until the new one arrives

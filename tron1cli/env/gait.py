@@ -90,3 +90,27 @@ def swing_fold(leg_phase: np.ndarray, stance: float, fold_rad: tuple[float, floa
         out[:, _HIP[leg]] = -sign * fold_rad[0] * w[:, leg]
         out[:, _KNEE[leg]] = sign * fold_rad[1] * w[:, leg]
     return out
+
+
+def fold_targets(
+    targets: np.ndarray,
+    leg_phase: np.ndarray,
+    stance: float,
+    fold_rad: tuple[float, float],
+    keep: float,
+    default_pose: np.ndarray,
+) -> np.ndarray:
+    """Joint targets (N, 6) rad: ``targets`` (the default pose plus the scaled action) with the
+    swing fold of legs at ``leg_phase`` (N, 2) added (:func:`swing_fold`).
+
+    ``keep`` in [0, 1] limits the policy's authority over the fold: while a joint is folded, its
+    flexion from ``default_pose`` stays at least ``keep`` x the fold's, whatever the action asks
+    (0: no limit; 1: the action can add flexion but never take the fold's away).
+    """
+    off = swing_fold(leg_phase, stance, fold_rad)
+    out = targets + off
+    if keep > 0.0:
+        sign = np.sign(off)
+        flex = np.maximum(sign * (out - default_pose), keep * np.abs(off))
+        out = np.where(sign != 0.0, default_pose + sign * flex, out)
+    return out

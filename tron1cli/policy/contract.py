@@ -69,6 +69,7 @@ def build_contract(run_cfg, gru_hidden: int, source: str) -> dict:
             "offset": env.gait.offset,
             "stance": env.gait.stance,
             "swing_fold_rad": [float(x) for x in env.gait.swing_fold_rad],
+            "swing_fold_keep": float(env.gait.swing_fold_keep),
         },
         "depth": None
         if layout.depth_hw is None
@@ -163,6 +164,9 @@ def _check_types(contract: Mapping, where: str) -> None:
         fold = gc.get("swing_fold_rad", [0.0, 0.0])
         if not (isinstance(fold, list) and len(fold) == 2 and all(_is_number(x) for x in fold)):
             raise bad("gait_clock.swing_fold_rad", "a list of two numbers", fold)
+        keep = gc.get("swing_fold_keep", 0.0)
+        if not (_is_number(keep) and 0.0 <= keep <= 1.0):
+            raise bad("gait_clock.swing_fold_keep", "a number in [0, 1]", keep)
     depth = contract.get("depth")
     if depth is not None:
         if not isinstance(depth, dict):

@@ -128,7 +128,11 @@ def run_config(
         seed=seed,
         terrain=preset.terrain,
         nthread=nthread,
-        gait=GaitConfig(enabled=preset.gait_prior, swing_fold_rad=tuple(preset.swing_fold)),
+        gait=GaitConfig(
+            enabled=preset.gait_prior,
+            swing_fold_rad=tuple(preset.swing_fold),
+            swing_fold_keep=preset.swing_fold_keep,
+        ),
         perception=preset.perception,
         depth_from=int(round(preset.num_envs * preset.teacher_ratio)),
         randomization=preset.randomization,
