@@ -41,6 +41,7 @@ from tron1cli.cli.common import (
     terrain_help,
     threads_option,
 )
+from tron1cli.config.env import GaitConfig
 from tron1cli.config.presets import FLAT_REWARD_RAMPS, PRESETS
 from tron1cli.env.randomization import ALL_TERMS
 from tron1cli.env.rewards import (
@@ -84,6 +85,7 @@ PRESET_OPTIONS = (
     "level_floor",
     "swing_fold",
     "swing_fold_keep",
+    "gait_freq_range",
 )
 
 
@@ -280,6 +282,13 @@ def train(
         "a folded hip or knee keeps at least that share of the fold's flexion (0: the policy may "
         "undo it all; needs --swing-fold).",
     ),
+    gait_freq_range: str = typer.Option(
+        "1.5,2.5",
+        "--gait-freq-range",
+        metavar="LO,HI",
+        help="Range (Hz) of the gait clock's frequency, drawn with each command, e.g. 2,2.5 "
+        "(deployment runs the middle of it unless told otherwise).",
+    ),
     face_climb: bool = typer.Option(
         False,
         "--face-climb/--no-face-climb",
@@ -456,6 +465,7 @@ def train(
             face_climb=face_climb if "face_climb" in given else base.face_climb,
             swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
             swing_fold_keep=swing_fold_keep if "swing_fold_keep" in given else base.swing_fold_keep,
+            gait_freq_hz=_parse_freq(gait_freq_range) if "gait_freq_range" in given else base.gait_freq_hz,
             level_floor=MappingProxyType(
                 _parse_levels(level_floor) if "level_floor" in given else base.level_floor
             ),
@@ -569,6 +579,7 @@ def _saved_values(cfg) -> dict:
         "level_floor": dict(e.level_floor),
         "swing_fold": tuple(e.gait.swing_fold_rad),
         "swing_fold_keep": e.gait.swing_fold_keep,
+        "gait_freq_range": tuple(e.gait.freq_hz),
     }
 
 
@@ -585,6 +596,8 @@ def _as_saved(name: str, value):
             return _parse_levels(value)
         if name == "swing_fold":
             return _parse_fold(value)
+        if name == "gait_freq_range":
+            return _parse_freq(value)
         if name == "reward_ramps":
             return _ramps(value)
         if name == "randomize_skip":
@@ -737,6 +750,19 @@ def _parse_fold(text: str) -> tuple[float, float]:
     return fold
 
 
+def _parse_freq(text: str) -> tuple[float, float]:
+    """``--gait-freq-range``'s ``LO,HI`` -> (lo, hi) Hz; ValueError, one line, otherwise."""
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        lo = hi = float("nan")
+    if not (0.0 < lo <= hi < math.inf):
+        raise ValueError(
+            f"--gait-freq-range wants two frequencies 0 < LO <= HI in Hz, e.g. 2,2.5, got '{text}'"
+        )
+    return lo, hi
+
+
 def _terrain_summary(e) -> str:
     """The header's note on a run's terrain, command and gait options where they are not the defaults."""
     notes = []
@@ -754,6 +780,8 @@ def _terrain_summary(e) -> str:
         notes.append("swing fold hip {:g}, knee {:g} rad".format(*e.gait.swing_fold_rad))
     if e.gait.swing_fold_keep:
         notes.append(f"{e.gait.swing_fold_keep:g} of the fold kept")
+    if tuple(e.gait.freq_hz) != GaitConfig.freq_hz:
+        notes.append("gait clock {:g}-{:g} Hz".format(*e.gait.freq_hz))
     return f" ({'; '.join(notes)})" if notes else ""
 
 

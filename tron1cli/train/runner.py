@@ -130,6 +130,7 @@ def run_config(
         nthread=nthread,
         gait=GaitConfig(
             enabled=preset.gait_prior,
+            freq_hz=tuple(preset.gait_freq_hz),
             swing_fold_rad=tuple(preset.swing_fold),
             swing_fold_keep=preset.swing_fold_keep,
         ),
