@@ -224,3 +224,14 @@ def test_flat_orientation_is_the_squared_sine_of_the_tilt() -> None:
         (0.0, 0.0, -1.0),
     )
     np.testing.assert_allclose(rt.flat_orientation_sq(g), [math.sin(pitch) ** 2, math.sin(roll) ** 2, 0.0])
+
+
+def test_track_progress_pays_only_speed_along_the_command_clipped_at_it() -> None:
+    cmd = np.array([[0.5, 0.0]] * 5 + [[0.3, 0.4]] * 3 + [[0.05, 0.0]])
+    v = np.array(
+        [[0.25, 0.0], [1.0, 0.0], [-0.3, 0.0], [0.0, 0.5], [0.0, 0.0]]  # half, over, back, across, still
+        + [[0.3, 0.4], [0.6, 0.8], [0.4, 0.3]]  # exact, twice, off-axis (0.24 / 0.25)
+        + [[0.05, 0.0]]  # a command under 0.1 m/s pays nothing
+    )
+    np.testing.assert_allclose(rt.track_progress(cmd, v), [0.5, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.96, 0.0])
+    np.testing.assert_allclose(rt.track_progress(cmd[-1:], v[-1:], min_cmd=0.01), [1.0])

@@ -64,6 +64,17 @@ def track_lin_vel_l2(v_cmd_xy: np.ndarray, v_xy: np.ndarray, alpha: float = 4.0)
     return np.exp(-alpha * np.sum(err * err, axis=-1))
 
 
+def track_progress(v_cmd_xy: np.ndarray, v_xy: np.ndarray, min_cmd: float = 0.1) -> np.ndarray:
+    """Share of the commanded planar speed made along the command, ``clip(v . c / |c|^2, 0, 1)``,
+    ``(N,)``; 0 for a command slower than ``min_cmd`` m/s. Linear and 0 for a robot that stands,
+    unlike the kernels above, which pay a standing robot ``exp(-alpha |c|^2)`` of their maximum."""
+    cmd = _f64(v_cmd_xy)
+    c2 = np.sum(cmd * cmd, axis=-1)
+    moving = c2 >= min_cmd**2
+    share = np.sum(cmd * _f64(v_xy), axis=-1) / np.where(moving, c2, 1.0)
+    return np.where(moving, np.clip(share, 0.0, 1.0), 0.0)
+
+
 def track_yaw_rate(w_cmd: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Yaw-rate tracking ``exp(-4 (w_cmd - w)^2)``, ``w_cmd`` and ``w`` (N,) in rad/s."""
     return np.exp(-4.0 * (_f64(w_cmd) - _f64(w)) ** 2)

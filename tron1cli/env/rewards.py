@@ -332,6 +332,7 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     "track_lin_dir": lambda env: rt.track_direction(_v_cmd(env), _v_xy(env)),
     "track_lin_mag": lambda env: rt.track_magnitude(_v_cmd(env), _v_xy(env)),
     "track_lin_l2": lambda env: rt.track_lin_vel_l2(_v_cmd(env), _v_xy(env), env.reward_cfg.l2_alpha),
+    "track_progress": lambda env: rt.track_progress(_v_cmd(env), _v_xy(env)),
     "track_yaw": lambda env: rt.track_yaw_rate(env.commands.value[:, 2], env.state.base_ang_vel_b[:, 2]),
     "lin_vel_z": lambda env: rt.lin_vel_z_sq(env.state.base_lin_vel_b[:, 2]),
     "flat_orientation": lambda env: rt.flat_orientation_sq(env.state.projected_gravity),
