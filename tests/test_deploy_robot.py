@@ -102,7 +102,7 @@ def test_observer_builds_the_envs_observation():
 
 def test_the_robot_side_applies_the_policys_swing_fold_at_the_clocks_phase():
     from tron1cli.config.env import GaitConfig
-    from tron1cli.env.gait import fold_targets, leg_phases
+    from tron1cli.env.gait import leg_phases, swing_fold
     from tron1cli.policy.contract import layout_of
     from tron1cli.policy.runtime import load_policy
 
@@ -111,11 +111,17 @@ def test_the_robot_side_applies_the_policys_swing_fold_at_the_clocks_phase():
     plain = Observer(layout, pose, 2.0, pol.run_cfg.env.gait)
     np.testing.assert_array_equal(plain.folded(pose + 0.3, plain.phase), pose + 0.3)
     obs = Observer(layout, pose, 2.0, GaitConfig(swing_fold_rad=(0.5, 0.8), swing_fold_keep=0.5))
-    unfold = pose + np.array([0.0, 0.6, -0.9, 0.0, -0.6, 0.9])
+    unfold = pose + np.array([0.0, 0.6, -0.9, 0.0, -0.6, 0.9])  # every hip and knee against flexion
+    held = 0
     for _ in range(10):
-        want = fold_targets(unfold[None], leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8), 0.5, pose)[0]
-        np.testing.assert_allclose(obs.folded(unfold, obs.phase), want)
+        off = swing_fold(leg_phases(obs.phase, 0.5), 0.5, (0.5, 0.8))[0]
+        got = obs.folded(unfold, obs.phase)
+        np.testing.assert_allclose(got[off == 0], unfold[off == 0])  # unfolded joints: the action's
+        flex = np.sign(off[off != 0]) * (got - pose)[off != 0]
+        np.testing.assert_allclose(flex, 0.5 * np.abs(off[off != 0]))  # folded: half the fold kept
+        held += int((off != 0).any())
         obs.advance(np.zeros(6), 0.02)
+    assert held > 0
     assert obs.phase[0] == pytest.approx(0.4)
 
 

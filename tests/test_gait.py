@@ -156,15 +156,16 @@ def test_a_kept_fold_by_hand():
     """Left leg at the fold's peak (hip -0.5, knee +0.8), right leg in stance. Keeping 0.75 of the
     fold holds the left flexion at least 0.375 / 0.6 rad however the action unfolds it; flexion
     the action adds stays, and the stance leg is the action's alone."""
-    peak = 0.5 + 0.5 * FOLD_SHARE / 2
-    legs = np.array([[peak, 0.25]] * 2)
+    phase = np.full(2, 0.5 + 0.5 * FOLD_SHARE / 2)  # the right leg, half a period behind, stands
     d = robot.DEFAULT_POSE
     unfold = d + np.array([[0.1, 0.4, -0.7, 0.2, -0.9, 0.9], [0.0, -0.2, 0.3, 0.0, 0.0, 0.0]])
-    out = fold_targets(unfold, legs, 0.5, (0.5, 0.8), 0.75, d)
+    kept = GaitConfig(swing_fold_rad=(0.5, 0.8), swing_fold_keep=0.75)
+    out = fold_targets(unfold, phase, kept, d)
     np.testing.assert_allclose(out[0] - d, [0.1, -0.375, 0.6, 0.2, -0.9, 0.9], atol=1e-12)
     np.testing.assert_allclose(out[1] - d, [0.0, -0.7, 1.1, 0.0, 0.0, 0.0], atol=1e-12)  # more flexion
-    free = fold_targets(unfold, legs, 0.5, (0.5, 0.8), 0.0, d)
-    np.testing.assert_allclose(free, unfold + swing_fold(legs, 0.5, (0.5, 0.8)))
+    free = fold_targets(unfold, phase, GaitConfig(swing_fold_rad=(0.5, 0.8)), d)
+    np.testing.assert_allclose(free, unfold + swing_fold(leg_phases(phase, 0.5), 0.5, (0.5, 0.8)))
+    assert fold_targets(unfold, phase, GaitConfig(), d) is unfold  # no fold: the targets themselves
 
 
 def test_the_env_keeps_the_fold_against_an_unfolding_action():
@@ -178,12 +179,7 @@ def test_the_env_keeps_the_fold_against_an_unfolding_action():
         env.step(act)
         legs = leg_phases(phase, 0.5)
         want = fold_targets(
-            robot.DEFAULT_POSE + robot.ACTION_SCALE * env.actions,
-            legs,
-            0.5,
-            (0.5, 0.8),
-            0.5,
-            robot.DEFAULT_POSE,
+            robot.DEFAULT_POSE + robot.ACTION_SCALE * env.actions, phase, gait, robot.DEFAULT_POSE
         )
         np.testing.assert_allclose(env.targets, want)
         off = swing_fold(legs, 0.5, (0.5, 0.8))

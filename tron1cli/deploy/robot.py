@@ -38,7 +38,7 @@ from tron1cli.config.env import GaitConfig
 from tron1cli.deploy.schedule import CommandSchedule
 from tron1cli.env import robot
 from tron1cli.env.core import ACTION_CLIP
-from tron1cli.env.gait import clock_observation, fold_targets, leg_phases
+from tron1cli.env.gait import clock_observation, fold_targets
 from tron1cli.env.math3d import quat_rotate_inverse
 from tron1cli.env.observations import ObsLayout, assemble, proprio_values, push_history
 from tron1cli.errors import Tron1Error, UsageError
@@ -103,14 +103,7 @@ class Observer:
     def folded(self, targets: np.ndarray, phase: np.ndarray) -> np.ndarray:
         """Joint targets (6,) rad with the swing fold at clock ``phase`` (1,), as the env applies
         it (``targets`` unchanged without one)."""
-        g = self.gait
-        if not any(g.swing_fold_rad):
-            return targets
-        legs = leg_phases(phase, g.offset)
-        folded = fold_targets(
-            targets[None], legs, g.stance, g.swing_fold_rad, g.swing_fold_keep, self.default_pose
-        )
-        return folded[0]
+        return fold_targets(targets[None], phase, self.gait, self.default_pose)[0]
 
     def advance(self, action: np.ndarray, dt: float) -> np.ndarray:
         """Record the applied action (clipped as in the env) and tick the clock by ``dt`` (s);

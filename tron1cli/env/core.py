@@ -216,12 +216,10 @@ class Tron1Env:
         self.actions[:] = np.clip(actions, -ACTION_CLIP, ACTION_CLIP)
         self._prev_targets[:] = self.targets
         self.targets[:] = robot.DEFAULT_POSE + robot.ACTION_SCALE * self.actions
-        g = self.cfg.gait
-        if any(g.swing_fold_rad):  # at the phase the policy saw with this action
-            legs = leg_phases(self.commands.gait_phase, g.offset)
-            self.targets[:] = fold_targets(
-                self.targets, legs, g.stance, g.swing_fold_rad, g.swing_fold_keep, robot.DEFAULT_POSE
-            )
+        # the swing fold at the phase the policy saw with this action
+        self.targets[:] = fold_targets(
+            self.targets, self.commands.gait_phase, self.cfg.gait, robot.DEFAULT_POSE
+        )
         self._ctrl[:] = self.targets[:, None, :]
         late = np.arange(self.cfg.decimation)[None, :] < self.randomizer.delay_steps[:, None]
         if late.any():  # system delay: the old target holds until the new one arrives

@@ -15,9 +15,14 @@ policy's contract (``gait_clock.swing_fold_rad``) and deployments apply it too.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from tron1cli.env import robot
+
+if TYPE_CHECKING:
+    from tron1cli.config.env import GaitConfig
 
 _HIP = (robot.JOINT_NAMES.index("hip_L"), robot.JOINT_NAMES.index("hip_R"))
 _KNEE = (robot.JOINT_NAMES.index("knee_L"), robot.JOINT_NAMES.index("knee_R"))
@@ -93,24 +98,22 @@ def swing_fold(leg_phase: np.ndarray, stance: float, fold_rad: tuple[float, floa
 
 
 def fold_targets(
-    targets: np.ndarray,
-    leg_phase: np.ndarray,
-    stance: float,
-    fold_rad: tuple[float, float],
-    keep: float,
-    default_pose: np.ndarray,
+    targets: np.ndarray, phase: np.ndarray, gait: GaitConfig, default_pose: np.ndarray
 ) -> np.ndarray:
     """Joint targets (N, 6) rad: ``targets`` (the default pose plus the scaled action) with the
-    swing fold of legs at ``leg_phase`` (N, 2) added (:func:`swing_fold`).
+    swing fold of ``gait`` at clock ``phase`` (N,) added (:func:`swing_fold`); ``targets`` itself
+    when ``gait`` has no fold. The env core and deploy-robot both call this.
 
-    ``keep`` in [0, 1] limits the policy's authority over the fold: while a joint is folded, its
-    flexion from ``default_pose`` stays at least ``keep`` x the fold's, whatever the action asks
-    (0: no limit; 1: the action can add flexion but never take the fold's away).
+    ``gait.swing_fold_keep`` in [0, 1] limits the policy's authority over the fold: while a joint
+    is folded, its flexion from ``default_pose`` stays at least keep x the fold's, whatever the
+    action asks (0: no limit; 1: the action can add flexion but never take the fold's away).
     """
-    off = swing_fold(leg_phase, stance, fold_rad)
+    if not any(gait.swing_fold_rad):
+        return targets
+    off = swing_fold(leg_phases(phase, gait.offset), gait.stance, gait.swing_fold_rad)
     out = targets + off
-    if keep > 0.0:
+    if gait.swing_fold_keep > 0.0:
         sign = np.sign(off)
-        flex = np.maximum(sign * (out - default_pose), keep * np.abs(off))
+        flex = np.maximum(sign * (out - default_pose), gait.swing_fold_keep * np.abs(off))
         out = np.where(sign != 0.0, default_pose + sign * flex, out)
     return out
