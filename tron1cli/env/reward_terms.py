@@ -5,7 +5,7 @@ Every function takes batched arrays with the environment axis first (``N`` envs)
 caller's choice as long as command and measurement agree), yaw rates ``(N,)`` rad/s, joint
 quantities ``(N, J)`` (rad, rad/s, rad/s^2, N m), actions ``(N, A)`` (policy units).
 
-The functions return the *unweighted* term: tracking terms lie in (0, 1], penalties are
+The functions return the *unweighted* term: tracking terms lie in [0, 1], penalties are
 non-negative; the Table II weights (e.g. -2.0 for ``v_z^2``) are applied by the caller.  The two
 fusions at the end combine stable and linear-tracking rewards as in Table II (RFM) or as a plain
 weighted sum (ablation).
