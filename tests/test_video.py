@@ -151,3 +151,14 @@ def test_options_and_backend_choice():
         check_video_path(Path("x.gif"))
     assert gl_backends({"MUJOCO_GL": "EGL"}) == ["egl"]  # the user's choice, as it is
     assert gl_backends({})[-1] == "osmesa"  # software rendering is the last resort
+
+
+def test_eval_films_each_speed_of_a_sweep(tmp_path):
+    """``eval --speeds --video``: one take under the training commands, then one per speed asked,
+    each as long as its batch (10 policy steps at 50 Hz: 6 frames at 30 fps)."""
+    out = tmp_path / "ev.mp4"
+    args = ("eval", str(SHIPPED), "--terrain", "flat", "--envs", "2", "--steps", "10")
+    r = tron1(*args, "--speeds", "vx:0.3,0.6", "--video", str(out), "--video-size", "160x120")
+    assert r.returncode == 0, r.stderr
+    frames, _ = decode(out)
+    assert len(frames) == 3 * 6

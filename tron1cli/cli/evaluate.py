@@ -231,7 +231,8 @@ def eval_cmd(
         "--video",
         metavar="FILE.mp4",
         help=VIDEO_HELP
-        + "env 0 of each terrain's batch (the first policy of each method), one after another.",
+        + "env 0 of each terrain's batch (the first policy of each method) under the training "
+        "commands, then at each --speeds speed, one after another, each captioned.",
     ),
     video_size: str | None = typer.Option(
         None, "--video-size", metavar="WxH", help=VIDEO_SIZE_HELP + " [default: 640x480]."
@@ -325,12 +326,10 @@ def eval_cmd(
                     spec = EvalSpec(
                         t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq, backend=backend
                     )
+                    where = f"{label} on {t}, " + ("hardest level" if level == -1 else f"level {level}")
                     runs = []
                     for k, p in enumerate(pols):
-                        take = None
-                        if recorder is not None and k == 0:
-                            lv = "hardest level" if level == -1 else f"level {level}"
-                            take = recorder.take([0], caption=f"{label} on {t}, {lv}, env 0 of {envs}")
+                        take = _take(recorder, k, f"{where}, training commands, env 0 of {envs}")
                         runs.append(run_batch(p, spec, advance(f"{label} {t}"), stream=stream, video=take))
                         if stream is not None:  # the first batch only: one episode on one timeline
                             stream.close()
@@ -345,8 +344,9 @@ def eval_cmd(
                                     p,
                                     replace(spec, speed=v, speed_dim=dim),
                                     advance(f"{label} {t} {dim} {v:g} {unit}"),
+                                    video=_take(recorder, k, f"{where}, {dim} {v:g} {unit}, env 0 of {envs}"),
                                 )
-                                for p in pols
+                                for k, p in enumerate(pols)
                             ]
                             by_speed[dim][label][t][v] = aggregate([r.metrics["success_rate"] for r in sr])
                             progress_by_speed[dim][label][t][v] = aggregate(
@@ -437,6 +437,11 @@ def eval_cmd(
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))
     render_video(recorder)
+
+
+def _take(recorder, k: int, caption: str):
+    """The video take of env 0 for the first policy (``k == 0``) of a method; None otherwise."""
+    return recorder.take([0], caption=caption) if recorder is not None and k == 0 else None
 
 
 def _randomisation(randomize: bool, policies) -> tuple[str, list[str] | None]:
