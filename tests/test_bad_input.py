@@ -343,6 +343,7 @@ def saved_run(tmp_path_factory) -> Path:
         (["--no-gait-prior"], "was started with --gait-prior"),
         (["--randomize"], "was started with --no-randomize"),
         (["--ablation", "single-critic"], "was started with --ablation none"),
+        (["--terminate-on", "base"], "was started with --terminate-on base,thigh_L,thigh_R"),
     ],
 )
 def test_resume_refuses_an_option_the_saved_run_fixes(saved_run, args, text):

@@ -14,7 +14,7 @@ from tron1cli.config import EnvConfig
 from tron1cli.env.curriculum import RULES, EpisodeEnds, TerrainCurriculum, deal_types
 from tron1cli.env.rewards import RewardConfig, swing_apex_m, with_settings
 from tron1cli.env.terrain import TerrainBank, TerrainConfig, highest_ground_height, riser_m
-from tron1cli.evaluation.climb import risers_climbed
+from tron1cli.evaluation.climb import fall_shares, risers_climbed
 
 
 def test_equal_shares_deal_round_robin():
@@ -177,6 +177,16 @@ def test_risers_climbed_hand_computed():
     assert risers_climbed(np.array([0.0, 0.19, 0.41, 0.09]), 0.2) == pytest.approx(0.75)
 
 
+def test_fall_shares_hand_computed():
+    # columns tilt, base, thigh_L, thigh_R; env 1 tilted onto its base, env 2 on both thighs,
+    # env 3 on one thigh, env 0 survived: a thigh counts once per env
+    causes = np.array(
+        [[0, 0, 0, 0], [1, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]],
+        dtype=bool,
+    )
+    assert fall_shares(causes) == (0.25, 0.25, 0.5)
+
+
 @pytest.fixture(scope="module")
 def teacher_stage_ckpt(tmp_path_factory):
     """One iteration of the teacher stage (every env a teacher) on stairs with perception."""
@@ -278,6 +288,9 @@ def test_probe_options_refused(tiny_ckpt_vision, args, text):
             ["--terrain", "stairs", "--swing-fold", "0.5,0.8", "--swing-fold-keep", "nan"],
             "must lie in [0, 1], got nan",
         ),
+        (["--terrain", "stairs", "--terminate-on", "knee"], "choose one or more of base, thigh_L, thigh_R"),
+        (["--terrain", "stairs", "--terminate-on", ","], "each once; got (none)"),
+        (["--terrain", "stairs", "--terminate-on", "base,base"], "each once; got base,base"),
     ],
 )
 def test_climb_training_options_refused(tmp_path, args, text):
@@ -289,7 +302,7 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     r = tron1(
         "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
         "--face-climb", "--level-floor", "stairs_up=2", "--swing-fold", "0.5,0.8", "--swing-fold-keep", "0.5",
-        "--gait-freq-range", "2,2.5", "--envs", "4", "--iterations", "1",
+        "--gait-freq-range", "2,2.5", "--terminate-on", "base", "--envs", "4", "--iterations", "1",
         "--steps-per-env", "2", "--hidden", "16",
         "--run-dir", str(run),
     )  # fmt: skip
@@ -298,14 +311,14 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     assert (
         "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; level floor "
         "stairs_up=2; commands facing the climb; swing fold hip 0.5, knee 0.8 rad; 0.5 of the fold kept; "
-        "gait clock 2-2.5 Hz), "
+        "gait clock 2-2.5 Hz; falls on base contact), "
         "4 envs" in header
     )
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
     assert saved["commands"]["face_climb"] is True and saved["level_floor"] == {"stairs_up": 2}
     assert saved["gait"]["swing_fold_rad"] == [0.5, 0.8] and saved["gait"]["swing_fold_keep"] == 0.5
-    assert saved["gait"]["freq_hz"] == [2.0, 2.5]
+    assert saved["gait"]["freq_hz"] == [2.0, 2.5] and saved["termination"]["bodies"] == ["base"]
     from tron1cli.evaluation.protocol import EvalSpec, make_env
     from tron1cli.policy.runtime import load_policy
 
@@ -314,6 +327,7 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
         load_policy(str(run / "checkpoints" / "latest.pt"), actor="teacher"),
         EvalSpec("stairs_up", 9, 64, 2, True),
     )
+    assert env.cfg.termination.bodies == ("base", "thigh_L", "thigh_R")  # judged by every body
     env.reset()
     flat = make_env(load_policy(str(run / "checkpoints" / "latest.pt")), EvalSpec("flat", 0, 2, 2, True))
     flat.close()  # a floor on stairs up does not stop the policy being evaluated on flat ground

@@ -17,6 +17,7 @@ import tron1cli.cli.main as cli_main
 from tron1cli.cli.deploy_sim import deploy_sim
 from tron1cli.deploy.pipeline import DeployConfig, DeploySim
 from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
+from tron1cli.env.terminations import FALL_CAUSES
 from tron1cli.policy.export import export_onnx
 from tron1cli.policy.runtime import load_policy
 
@@ -79,10 +80,31 @@ def test_json_report(vision_onnx, monkeypatch, capsys):
     assert isinstance(rep["survived"], bool) and rep["unstable"] is False
     assert 0.0 < rep["duration_s"] <= 2.0 and rep["policy_steps"] == round(rep["duration_s"] * 50)
     assert rep["survived"] == (rep["ended"] == "duration")
+    if rep["ended"] == "fell":  # what ended it, in words
+        assert rep["fell_by"] and set(rep["fell_by"].split("+")) <= set(FALL_CAUSES)
+    else:
+        assert rep["fell_by"] is None
     assert 0.0 < rep["policy_ms_p50"] <= rep["policy_ms_p99"] and rep["realtime_factor"] > 0
     assert rep["vel_tracking_error"] >= 0 and rep["com_error_m"] >= 0
     assert (rep["physics_hz"], rep["policy_hz"], rep["depth_hz"]) == (500.0, 50.0, 30.0)  # the robot's loop
     assert rep["terrain_type"] in ("stairs_up", "stairs_down") and rep["depth_thread_separate"] is True
+
+
+def test_a_fall_is_named_by_its_cause(vision_onnx, monkeypatch, capsys):
+    """A tilt limit no robot can keep (1e-6 rad) ends the run at once, as a fall by tilt."""
+    orig = DeploySim._env_config
+
+    def strict(self):
+        c = orig(self)
+        return replace(c, termination=replace(c.termination, max_roll=1e-6, max_pitch=1e-6))
+
+    monkeypatch.setattr(DeploySim, "_env_config", strict)
+    code, out, err = run_cli(monkeypatch, capsys, str(vision_onnx), "--duration", "1", "--json")
+    rep = json.loads(out)
+    assert rep["ended"] == "fell" and rep["policy_steps"] == 1
+    assert "tilt" in rep["fell_by"].split("+")
+    code, out, err = run_cli(monkeypatch, capsys, str(vision_onnx), "--duration", "1")
+    assert "NO (fell: tilt" in out
 
 
 @pytest.mark.parametrize("latency_ms", [0.0, 50.0])

@@ -1,10 +1,12 @@
 """The batched env core: shapes, layout, determinism, terminations, resets."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from tron1cli.config import CommandConfig, EnvConfig, GaitConfig, NoiseConfig, TerminationConfig
-from tron1cli.env import robot
+from tron1cli.env import robot, terminations
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.observations import ObsLayout
 from tron1cli.env.rewards import make_reward_config
@@ -126,6 +128,42 @@ def test_unstable_sim_resets_that_env_and_counts_it():
     assert env.unstable_count == 1
     assert np.isfinite(env.physics.state).all()
     assert env.episode_step[2] == 0
+    env.close()
+
+
+def test_fall_causes_of_one_step_hand_built():
+    """Tilt past either limit and each termination body's contact, per env; an unstable world and
+    a switched-off body contact are no causes; a time-out is no fall."""
+    cfg = TerminationConfig(max_roll=0.8, max_pitch=0.8)
+    up = np.array([0.0, 0.0, -1.0])
+    rolled = np.array([0.0, np.sin(1.0), -np.cos(1.0)])  # 1 rad of roll
+    gravity = np.array([up, rolled, up, up, rolled, up])
+    contact = np.zeros((6, 3), dtype=bool)
+    contact[2, 0] = contact[3, 2] = contact[1, 0] = True  # base (env 1 and 2), thigh_R (env 3)
+    unstable = np.array([False, False, False, False, True, False])
+    steps = np.array([1, 1, 1, 1, 1, 100])
+    t = terminations.check(cfg, gravity, contact, unstable, steps, 100)
+    assert terminations.FALL_CAUSES == ("tilt", "base", "thigh_L", "thigh_R")
+    assert t.failed.tolist() == [False, True, True, True, False, False]
+    assert t.time_out.tolist() == [False] * 5 + [True]
+    assert [terminations.cause_words(c) for c in t.causes] == ["", "tilt+base", "base", "thigh_R", "", ""]
+    off = terminations.check(replace(cfg, contact_bodies=False), gravity, contact, unstable, steps, 100)
+    assert [terminations.cause_words(c) for c in off.causes] == ["", "tilt", "", "", "", ""]
+    base_only = replace(cfg, bodies=("base",))  # a thigh on the ground is no fall
+    t = terminations.check(base_only, gravity, contact, unstable, steps, 100)
+    assert [terminations.cause_words(c) for c in t.causes] == ["", "tilt+base", "base", "", "", ""]
+    assert base_only.judged(5.0) == replace(cfg, episode_length_s=5.0)  # evaluation counts them all
+
+
+def test_a_robot_laid_on_its_side_falls_by_tilt():
+    env = make_env(2)
+    env.reset()
+    qpos = env.physics.state[:, env.physics.qpos_slice]
+    qpos[0, 3:7] = [np.cos(0.5), np.sin(0.5), 0.0, 0.0]  # env 0 rolled by 1 rad
+    env.physics.state[:, env.physics.qpos_slice] = qpos
+    res = env.step(np.zeros((2, 6)))
+    assert res.failed.tolist() == [True, False]
+    assert res.fall_causes[0, 0] and not res.fall_causes[1].any()
     env.close()
 
 

@@ -186,7 +186,7 @@ def deploy_sim(
 def _table(rep: dict) -> Table:
     ended = {
         "duration": "ran the full duration",
-        "fell": "fell",
+        "fell": f"fell: {rep['fell_by']}",
         "edge": "reached the edge of the terrain tile",
         "unstable": "simulation went UNSTABLE",
         "viewer closed": "viewer closed",

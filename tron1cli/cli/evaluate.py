@@ -10,6 +10,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 import typer
+from rich import box
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -520,10 +521,13 @@ def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, 
     table = Table(
         title=f"climb probe: {policy_label(path)}",
         caption=f"stairs up, {envs} envs x {steps} steps, training commands, randomisation "
-        f"{rand_word}, full window; success and traverse in %, progress: command "
-        "progress, risers: climbed per env",
+        f"{rand_word}, full window; cm: riser height; success and traverse in %, progress: command "
+        "progress, risers: climbed per env; fell by: % of envs whose fall came with the base "
+        "tilted past the limit / the base / a thigh touching the ground",
+        box=box.SIMPLE_HEAD,
+        collapse_padding=True,  # 80 columns
     )
-    for col in ("actor", "level", "riser cm", "success", "traverse", "progress", "risers", "pitch°"):
+    for col in ("actor", "level", "cm", "success", "traverse", "progress", "risers", "pitch°", "fell by"):
         table.add_column(col, justify="left" if col == "actor" else "right")
     for r in rows:
         table.add_row(
@@ -535,6 +539,7 @@ def _climb(groups, terrain, level, speeds, actor, envs, steps, randomize, seed, 
             "-" if r.progress is None else f"{r.progress:.2f}",
             f"{r.risers:.2f}",
             "-" if r.pitch_deg is None else f"{r.pitch_deg:+.1f}",
+            "/".join(f"{100 * v:.0f}" for v in (r.fell_tilt, r.fell_base, r.fell_thigh)),
         )
     out.print(table)
     if out_dir is not None:

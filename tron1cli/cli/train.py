@@ -52,6 +52,7 @@ from tron1cli.env.rewards import (
     with_settings,
     with_weights,
 )
+from tron1cli.env.robot import TERMINATION_BODIES
 
 
 def _ramps_text(ramps) -> str:
@@ -86,6 +87,7 @@ PRESET_OPTIONS = (
     "swing_fold",
     "swing_fold_keep",
     "gait_freq_range",
+    "terminate_on",
 )
 
 
@@ -289,6 +291,15 @@ def train(
         help="Range (Hz) of the gait clock's frequency, drawn with each command, e.g. 2,2.5 "
         "(deployment runs the middle of it unless told otherwise).",
     ),
+    terminate_on: str = typer.Option(
+        ",".join(TERMINATION_BODIES),
+        "--terminate-on",
+        metavar="BODIES",
+        help="The bodies whose touching the ground ends an episode as a fall, from "
+        f"{', '.join(TERMINATION_BODIES)}; e.g. base, as LimX's Isaac configs (a thigh brushing a "
+        "stair nosing then costs the collision penalty, not the episode). Evaluation always "
+        "judges falls by all three.",
+    ),
     face_climb: bool = typer.Option(
         False,
         "--face-climb/--no-face-climb",
@@ -466,6 +477,7 @@ def train(
             swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
             swing_fold_keep=swing_fold_keep if "swing_fold_keep" in given else base.swing_fold_keep,
             gait_freq_hz=_parse_freq(gait_freq_range) if "gait_freq_range" in given else base.gait_freq_hz,
+            terminate_on=tuple(_csv(terminate_on)) if "terminate_on" in given else base.terminate_on,
             level_floor=MappingProxyType(
                 _parse_levels(level_floor) if "level_floor" in given else base.level_floor
             ),
@@ -580,6 +592,7 @@ def _saved_values(cfg) -> dict:
         "swing_fold": tuple(e.gait.swing_fold_rad),
         "swing_fold_keep": e.gait.swing_fold_keep,
         "gait_freq_range": tuple(e.gait.freq_hz),
+        "terminate_on": tuple(e.termination.bodies),
     }
 
 
@@ -602,6 +615,8 @@ def _as_saved(name: str, value):
             return _ramps(value)
         if name == "randomize_skip":
             return frozenset(_csv(value))
+        if name == "terminate_on":
+            return tuple(_csv(value))
     except ValueError:
         return value
     return value
@@ -782,6 +797,8 @@ def _terrain_summary(e) -> str:
         notes.append(f"{e.gait.swing_fold_keep:g} of the fold kept")
     if tuple(e.gait.freq_hz) != GaitConfig.freq_hz:
         notes.append("gait clock {:g}-{:g} Hz".format(*e.gait.freq_hz))
+    if tuple(e.termination.bodies) != TERMINATION_BODIES:
+        notes.append("falls on " + ", ".join(e.termination.bodies) + " contact")
     return f" ({'; '.join(notes)})" if notes else ""
 
 

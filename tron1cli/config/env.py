@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 from tron1cli.env.curriculum import rule_named
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
+from tron1cli.env.robot import TERMINATION_BODIES
 from tron1cli.env.terrain import TerrainConfig, resolve_terrain
 
 
@@ -86,13 +87,28 @@ class TerminationConfig:
 
     max_roll: float = 0.8
     max_pitch: float = 0.8
-    contact_bodies: bool = True  # base or thigh touching the ground
+    contact_bodies: bool = True  # one of ``bodies`` touching the ground ends the episode
+    bodies: tuple[str, ...] = TERMINATION_BODIES  # (LimX's Isaac configs: the base alone)
     episode_length_s: float = 20.0
     max_qvel: float = 200.0  # |qvel| above this counts as an unstable simulation
 
     def __post_init__(self) -> None:
         if self.episode_length_s <= 0:
             raise ValueError("episode_length_s must be positive")
+        object.__setattr__(self, "bodies", tuple(self.bodies))
+        bad = [b for b in self.bodies if b not in TERMINATION_BODIES]
+        if bad or not self.bodies or len(set(self.bodies)) != len(self.bodies):
+            raise ValueError(
+                f"termination bodies: choose one or more of {', '.join(TERMINATION_BODIES)}, "
+                f"each once; got {','.join(self.bodies) or '(none)'}"
+            )
+
+    def judged(self, episode_length_s: float) -> TerminationConfig:
+        """The terminations evaluation and deployment judge by, whatever a policy trained with:
+        every termination body's contact is a fall (a thigh on a stair nosing too), episodes of
+        ``episode_length_s``; the tilt limits are the policy's own."""
+        every = dict(contact_bodies=True, bodies=TERMINATION_BODIES)
+        return replace(self, **every, episode_length_s=episode_length_s)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
-from tron1cli.config.env import GaitConfig
+from tron1cli.config.env import GaitConfig, TerminationConfig
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.learn.config import LearnerConfig
 
@@ -85,7 +85,8 @@ class TrainPreset:
     level_floor: terrain type -> lowest level its envs start on or move down to;
     swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``);
     swing_fold_keep: the share of it the action cannot take away (``GaitConfig.swing_fold_keep``);
-    gait_freq_hz: range of the gait clock's frequency, drawn with each command (``GaitConfig.freq_hz``).
+    gait_freq_hz: range of the gait clock's frequency, drawn with each command (``GaitConfig.freq_hz``);
+    terminate_on: the bodies whose ground contact ends an episode (``TerminationConfig.bodies``).
     """
 
     name: str
@@ -115,6 +116,7 @@ class TrainPreset:
     swing_fold: tuple[float, float] = (0.0, 0.0)
     swing_fold_keep: float = 0.0
     gait_freq_hz: tuple[float, float] = GaitConfig.freq_hz
+    terminate_on: tuple[str, ...] = TerminationConfig.bodies
 
     def __post_init__(self) -> None:
         if min(self.iterations, self.steps_per_env, self.epochs) < 1 or self.num_envs < 2:

@@ -35,6 +35,7 @@ from tron1cli.deploy.schedule import CommandSchedule
 from tron1cli.env import sensors
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
+from tron1cli.env.terminations import cause_words
 from tron1cli.env.terrain import resolve_terrain
 from tron1cli.errors import Tron1Error, UsageError
 from tron1cli.policy.contract import check_matches_env
@@ -220,7 +221,7 @@ class DeploySim:
             commands=commands,
             gait=gait,
             noise=replace(base.noise, enabled=cfg.noise),
-            termination=replace(base.termination, episode_length_s=cfg.duration_s + 1.0),
+            termination=base.termination.judged(cfg.duration_s + 1.0),
         )
 
     def _pin_terrain(self) -> None:
@@ -276,7 +277,7 @@ class DeploySim:
         policy_ms: list[float] = []
         ages_ms: list[float] = []
         self.frame_ages_ms = ages_ms  # per policy step: age (ms of sim time) of the depth frame used
-        ended, steps = "duration", 0
+        ended, steps, fell_by = "duration", 0, None
         pace = cfg.realtime or cfg.viewer
         wall0 = time.perf_counter()
         for k in range(total):
@@ -303,6 +304,7 @@ class DeploySim:
                 self.video.step(env, steps * dt, res.done)
             if res.done[0]:
                 ended = "unstable" if res.unstable[0] else "fell" if res.failed[0] else "edge"
+                fell_by = cause_words(res.fall_causes[0]) if res.failed[0] else None
                 break
             obs = res.obs
             st, lp = env.state, env.lipm
@@ -341,13 +343,14 @@ class DeploySim:
             wall_s=wall_s,
             steps=steps,
             ended=ended,
+            fell_by=fell_by,
             means={k: _mean(v, recon_count if k == "recon" else count) for k, v in s.items()},
             pushes=pushes,
             policy_ms=policy_ms,
             ages_ms=ages_ms,
         )
 
-    def _report(self, sim_s, wall_s, steps, ended, means, pushes, policy_ms, ages_ms) -> dict:
+    def _report(self, sim_s, wall_s, steps, ended, fell_by, means, pushes, policy_ms, ages_ms) -> dict:
         """Survival, tracking, LIPM figures, timing and depth latency of one run, as one flat dict.
 
         Units in the keys. vel_tracking_error: mean |v_cmd,xy - v_xy| (base frame, m/s);
@@ -355,7 +358,8 @@ class DeploySim:
         |p_com - p_zmp| (planar); com_height_error_m: mean |z - z_c|; depth_age_ms: age in
         simulation time of the frame each policy step used; depth_render_ms: wall-clock render
         time; depth_hidden_share: share of render time the control loop did not wait for (0 would
-        be a lockstep loop).
+        be a lockstep loop); fell_by: what ended a fall (``tilt``, ``base``, ``thigh_L``, ``thigh_R``
+        joined by ``+``; None without a fall).
         """
         cfg, env, pol, depth = self.cfg, self.env, self.policy, self.depth
         rep = {
@@ -366,6 +370,7 @@ class DeploySim:
             "level": int(env.curriculum.level[0]),
             "survived": ended not in ("fell", "unstable"),
             "ended": ended,
+            "fell_by": fell_by,
             "unstable": ended == "unstable",
             "duration_s": round(sim_s, 6),
             "requested_duration_s": cfg.duration_s,

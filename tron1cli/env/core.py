@@ -51,6 +51,8 @@ class StepResult:
         ``reset(stagger=True)``: its clock started at a random point, so a time-out cut it short;
         it moves no terrain level and is left out of training statistics), and ``reward/<term>``
         per-term sums.
+    fall_causes: (N, len(terminations.FALL_CAUSES)) bool, what made each failed env fail (tilt,
+        or a termination body touching the ground); False for every other env.
     """
 
     obs: dict[str, np.ndarray]
@@ -60,6 +62,7 @@ class StepResult:
     time_out: np.ndarray
     failed: np.ndarray
     unstable: np.ndarray
+    fall_causes: np.ndarray
     episode: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -292,6 +295,7 @@ class Tron1Env:
             time_out=term.time_out,
             failed=term.failed,
             unstable=term.unstable,
+            fall_causes=term.causes,
             episode=episode,
         )
 

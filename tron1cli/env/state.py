@@ -40,7 +40,7 @@ class RobotState:
     foot_force: np.ndarray  # (N, 2, 3) N, ground reaction on each foot, world frame
     foot_contact_pos: np.ndarray  # (N, 2, 3) m, contact centroid (only meaningful in contact)
     foot_in_contact: np.ndarray  # (N, 2) bool
-    body_contact: np.ndarray  # (N,) bool: a termination body touches the ground
+    body_contact: np.ndarray  # (N, len(TERMINATION_BODIES)) bool: each termination body touches the ground
     collision_count: np.ndarray  # (N,) int: collision bodies touching the ground
 
     def assign(self, ids: np.ndarray, other: RobotState) -> None:
@@ -95,6 +95,6 @@ def read_state(phys: BatchedPhysics, ids: np.ndarray | None = None) -> RobotStat
         foot_force=-np.stack([c[:, 1:4] for c in contact], axis=1) * (found[:, :, None] > 0),
         foot_contact_pos=np.stack([c[:, 4:7] for c in contact], axis=1),
         foot_in_contact=found > 0,
-        body_contact=np.any([sens(f"{b}_contact")[:, 0] > 0 for b in robot.TERMINATION_BODIES], axis=0),
+        body_contact=np.stack([sens(f"{b}_contact")[:, 0] > 0 for b in robot.TERMINATION_BODIES], axis=1),
         collision_count=np.sum([sens(f"{b}_contact")[:, 0] > 0 for b in robot.COLLISION_BODIES], axis=0),
     )

@@ -11,6 +11,10 @@ import numpy as np
 
 from tron1cli.config.env import TerminationConfig
 from tron1cli.env.math3d import roll_pitch
+from tron1cli.env.robot import TERMINATION_BODIES
+
+#: what can make an episode end as a fall: the columns of :attr:`Terminations.causes`
+FALL_CAUSES: tuple[str, ...] = ("tilt", *TERMINATION_BODIES)
 
 
 @dataclass
@@ -20,6 +24,7 @@ class Terminations:
     failed: np.ndarray  # fell: body contact or excessive tilt
     unstable: np.ndarray  # NaN, runaway velocity or a MuJoCo auto-reset inside the step
     time_out: np.ndarray  # episode length reached (not a failure)
+    causes: np.ndarray  # (N, len(FALL_CAUSES)) bool: what made a failed env fail; False elsewhere
 
     @property
     def done(self) -> np.ndarray:
@@ -55,17 +60,25 @@ def check(
     max_episode_steps: int,
     left_tile: np.ndarray | None = None,
 ) -> Terminations:
-    """Combine the termination conditions of one step (all inputs have N rows).
+    """Combine the termination conditions of one step (all inputs have N rows; ``body_contact``
+    (N, len(TERMINATION_BODIES)) bool, each termination body touching the ground; only those in
+    ``cfg.bodies`` end an episode).
 
     Reaching the edge of the terrain tile ends the episode as a time-out: the robot did nothing
     wrong, there is just no more ground.
     """
-    failed = tilt_exceeded(projected_gravity, cfg.max_roll, cfg.max_pitch)
-    if cfg.contact_bodies:
-        failed |= body_contact
-    failed &= ~unstable
+    tilted = tilt_exceeded(projected_gravity, cfg.max_roll, cfg.max_pitch)
+    counted = np.array([cfg.contact_bodies and b in cfg.bodies for b in TERMINATION_BODIES])
+    touching = body_contact & counted
+    failed = (tilted | touching.any(axis=1)) & ~unstable
     time_out = episode_step >= max_episode_steps
     if left_tile is not None:
         time_out = time_out | left_tile
     time_out &= ~failed & ~unstable
-    return Terminations(failed=failed, unstable=unstable, time_out=time_out)
+    causes = np.column_stack([tilted, touching]) & failed[:, None]
+    return Terminations(failed=failed, unstable=unstable, time_out=time_out, causes=causes)
+
+
+def cause_words(causes: np.ndarray) -> str:
+    """One env's fall causes ((len(FALL_CAUSES),) bool) in words: ``"tilt+base"``; ``""`` if none."""
+    return "+".join(name for name, hit in zip(FALL_CAUSES, causes, strict=True) if hit)

@@ -5,7 +5,8 @@ training commands and randomisation, 10 s) on pyramid stairs up at levels 3, 6 a
 20 cm risers). Per batch: success (survival, the paper's), traverse (success that walked half its
 commanded distance), command progress, and risers climbed per env: the highest the ground under
 the base got above the spawn point's, over the riser height, averaged over every env of the batch
-(fallers keep what they climbed before the fall). A policy that stands before the first riser
+(fallers keep what they climbed before the fall), and what the fallers fell by: tilt, the base or
+a thigh touching the ground. A policy that stands before the first riser
 succeeds but climbs 0 risers. One fixed probe, so that experiments compare on the same figures.
 """
 
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tron1cli.env.terminations import FALL_CAUSES
 from tron1cli.env.terrain import riser_m
 from tron1cli.evaluation.protocol import EvalResult, EvalSpec, run_batch
 
@@ -29,7 +31,10 @@ class ClimbRow:
     """One batch of the probe: ``actor`` on stairs up at ``level`` (``riser_m`` m risers).
 
     success, traverse: shares of the envs (0-1); progress: command progress (0-1); risers: mean
-    risers climbed per env; pitch_deg: mean base pitch (degrees, + nose down)."""
+    risers climbed per env; pitch_deg: mean base pitch (degrees, + nose down); fell_tilt,
+    fell_base, fell_thigh: shares of the envs (0-1) whose fall came with the base tilted past the
+    termination limit, the base touching the ground, a thigh touching it (one fall may have
+    several)."""
 
     actor: str
     level: int
@@ -39,6 +44,9 @@ class ClimbRow:
     progress: float | None
     risers: float
     pitch_deg: float | None
+    fell_tilt: float
+    fell_base: float
+    fell_thigh: float
 
     @classmethod
     def of(cls, actor: str, level: int, riser: float, r: EvalResult) -> ClimbRow:
@@ -52,7 +60,16 @@ class ClimbRow:
             m["command_progress"],
             risers_climbed(r.rise_m, riser),
             m["pitch_deg"],
+            *fall_shares(r.fall_causes),
         )
+
+
+def fall_shares(causes: np.ndarray) -> tuple[float, float, float]:
+    """Shares of the envs (0-1) whose fall had each cause, from per-env fall causes (N,
+    len(FALL_CAUSES)) bool: tilt, base contact, thigh contact (either thigh)."""
+    col = {name: causes[:, k] for k, name in enumerate(FALL_CAUSES)}
+    thigh = np.any([c for name, c in col.items() if name.startswith("thigh")], axis=0)
+    return float(col["tilt"].mean()), float(col["base"].mean()), float(thigh.mean())
 
 
 def risers_climbed(rise_m: np.ndarray, riser: float) -> float:

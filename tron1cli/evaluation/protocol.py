@@ -13,7 +13,9 @@ as a success, and the batch reports how far the envs went (``max_reach_m``).
 
 Metrics (Table I), averaged over the steps of envs still walking:
 
-- ``success_rate`` (0-1): share of envs that did not fall (or leave the tile) in the S steps;
+- ``success_rate`` (0-1): share of envs that did not fall (or leave the tile) in the S steps; a
+  fall is the base tilting past the policy's limits or the base or a thigh touching the ground,
+  whichever bodies the policy trained to fall on (``TerminationConfig.judged``);
 - ``orientation_error``: |g_b - (0, 0, -1)|, g_b the unit gravity direction in the base frame;
 - ``angular_velocity_error`` (rad/s): mean of |w_x| and |w_y|, base frame;
 - ``velocity_tracking_error`` (m/s): |v_cmd,xy - v_xy|, base frame;
@@ -47,6 +49,7 @@ from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, StepResult, Tron1Env
 from tron1cli.env.math3d import roll_pitch
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
+from tron1cli.env.terminations import FALL_CAUSES
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
 from tron1cli.evaluation.metric_names import METRICS
 from tron1cli.policy.contract import check_matches_env
@@ -220,7 +223,7 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         commands=commands,
         gait=base.gait if spec.gait_freq_hz is None else base.gait.fixed(spec.gait_freq_hz),
         terrain_cfg=eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
-        termination=replace(base.termination, episode_length_s=(spec.steps + 10) * base.policy_dt),
+        termination=base.termination.judged((spec.steps + 10) * base.policy_dt),
     )
     env = Tron1Env(cfg, policy.run_cfg.reward, backend=spec.backend)
     check_matches_env(policy.contract, env.layout, str(policy.path))
@@ -275,7 +278,9 @@ class EvalResult:
     none); exposure_s: per-env time walked on the terrain under test (s); tile_m: side of the eval
     tile (m); edge_m: distance from the centre (inf-norm, m) at which an env leaves it;
     max_reach_m: farthest any walking env got from the centre (inf-norm, m); rise_m: per env, the
-    highest the ground under its base got above the ground under its spawn point while it walked (m).
+    highest the ground under its base got above the ground under its spawn point while it walked (m);
+    fall_causes: (N, len(FALL_CAUSES)) bool, what ended each env's window in a fall (tilt, or a
+    termination body touching the ground; all False for a survivor or an unstable simulation).
     """
 
     metrics: dict[str, float | None]
@@ -287,6 +292,7 @@ class EvalResult:
     max_reach_m: float
     unstable_resets: int
     rise_m: np.ndarray
+    fall_causes: np.ndarray
 
     @property
     def failed(self) -> np.ndarray:
@@ -318,6 +324,7 @@ def run_batch(
         hidden = policy.initial_hidden(n)
         fell = np.zeros(n, dtype=bool)
         left = np.zeros(n, dtype=bool)
+        causes = np.zeros((n, len(FALL_CAUSES)), dtype=bool)
         exposed = np.zeros(n, dtype=np.int64)  # policy steps walked on the terrain
         reach = 0.0
         sums = dict.fromkeys(METRICS[1:4], 0.0)
@@ -345,7 +352,9 @@ def run_batch(
                 video.step(env, (t + 1) * env.policy_dt, res.done)
             if after_step is not None:
                 after_step(env, res, walking)
-            fell |= walking & (res.failed | res.unstable)
+            falls = walking & (res.failed | res.unstable)
+            causes[falls] = res.fall_causes[falls]
+            fell |= falls
             # the episode outlasts the window, so a walking env's time-out is the tile's edge
             left |= walking & res.time_out
             ok = walking & ~res.done
@@ -394,6 +403,7 @@ def run_batch(
             max_reach_m=reach,
             unstable_resets=env.unstable_count,
             rise_m=rise,
+            fall_causes=causes,
         )
     finally:
         env.close()

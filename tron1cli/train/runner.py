@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from tron1cli import __version__
-from tron1cli.config import CommandConfig, EnvConfig, GaitConfig
+from tron1cli.config import CommandConfig, EnvConfig, GaitConfig, TerminationConfig
 from tron1cli.config.presets import TrainPreset
 from tron1cli.config.serde import from_plain, to_plain
 from tron1cli.env.core import Tron1Env
@@ -143,6 +143,7 @@ def run_config(
         curriculum_rule=preset.curriculum_rule,
         level_floor=dict(preset.level_floor),
         commands=CommandConfig(face_climb=preset.face_climb),
+        termination=TerminationConfig(bodies=tuple(preset.terminate_on)),
     )
     learner_cfg = replace(
         LearnerConfig(),
