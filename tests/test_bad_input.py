@@ -355,8 +355,9 @@ def test_resume_refuses_an_option_the_saved_run_fixes(saved_run, args, text):
 
 def test_resume_accepts_the_saved_values(saved_run):
     r = tron1(
-        "train", "--resume", "--terrain", "flat", "--envs", "8", "--seed", "0", "--run-dir", str(saved_run)
-    )
+        "train", "--resume", "--terrain", "flat", "--envs", "8", "--seed", "0",
+        "--terminate-on", "thigh_R,base,thigh_L", "--run-dir", str(saved_run),
+    )  # fmt: skip
     assert r.returncode == 0 and "complete at iteration 1" in r.stdout, r.stderr
 
 

@@ -153,6 +153,7 @@ def test_fall_causes_of_one_step_hand_built():
     t = terminations.check(base_only, gravity, contact, unstable, steps, 100)
     assert [terminations.cause_words(c) for c in t.causes] == ["", "tilt+base", "base", "", "", ""]
     assert base_only.judged(5.0) == replace(cfg, episode_length_s=5.0)  # evaluation counts them all
+    assert TerminationConfig(bodies=("thigh_R", "base")).bodies == ("base", "thigh_R")  # one spelling
 
 
 def test_a_robot_laid_on_its_side_falls_by_tilt():

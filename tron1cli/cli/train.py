@@ -41,7 +41,7 @@ from tron1cli.cli.common import (
     terrain_help,
     threads_option,
 )
-from tron1cli.config.env import GaitConfig
+from tron1cli.config.env import GaitConfig, TerminationConfig
 from tron1cli.config.presets import FLAT_REWARD_RAMPS, PRESETS
 from tron1cli.env.randomization import ALL_TERMS
 from tron1cli.env.rewards import (
@@ -592,7 +592,7 @@ def _saved_values(cfg) -> dict:
         "swing_fold": tuple(e.gait.swing_fold_rad),
         "swing_fold_keep": e.gait.swing_fold_keep,
         "gait_freq_range": tuple(e.gait.freq_hz),
-        "terminate_on": tuple(e.termination.bodies),
+        "terminate_on": e.termination.bodies,
     }
 
 
@@ -616,7 +616,7 @@ def _as_saved(name: str, value):
         if name == "randomize_skip":
             return frozenset(_csv(value))
         if name == "terminate_on":
-            return tuple(_csv(value))
+            return TerminationConfig(bodies=_csv(value)).bodies
     except ValueError:
         return value
     return value
@@ -797,7 +797,7 @@ def _terrain_summary(e) -> str:
         notes.append(f"{e.gait.swing_fold_keep:g} of the fold kept")
     if tuple(e.gait.freq_hz) != GaitConfig.freq_hz:
         notes.append("gait clock {:g}-{:g} Hz".format(*e.gait.freq_hz))
-    if tuple(e.termination.bodies) != TERMINATION_BODIES:
+    if e.termination.bodies != TERMINATION_BODIES:
         notes.append("falls on " + ", ".join(e.termination.bodies) + " contact")
     return f" ({'; '.join(notes)})" if notes else ""
 

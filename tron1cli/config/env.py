@@ -95,13 +95,14 @@ class TerminationConfig:
     def __post_init__(self) -> None:
         if self.episode_length_s <= 0:
             raise ValueError("episode_length_s must be positive")
-        object.__setattr__(self, "bodies", tuple(self.bodies))
         bad = [b for b in self.bodies if b not in TERMINATION_BODIES]
         if bad or not self.bodies or len(set(self.bodies)) != len(self.bodies):
             raise ValueError(
                 f"termination bodies: choose one or more of {', '.join(TERMINATION_BODIES)}, "
                 f"each once; got {','.join(self.bodies) or '(none)'}"
             )
+        # one spelling per choice (the robot's order), so equal choices compare equal on --resume
+        object.__setattr__(self, "bodies", tuple(b for b in TERMINATION_BODIES if b in self.bodies))
 
     def judged(self, episode_length_s: float) -> TerminationConfig:
         """The terminations evaluation and deployment judge by, whatever a policy trained with:
