@@ -301,7 +301,8 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     run = tmp_path / "mix"
     r = tron1(
         "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
-        "--face-climb", "--level-floor", "stairs_up=2", "--swing-fold", "0.5,0.8", "--swing-fold-keep", "0.5",
+        "--face-climb", "--heading", "--level-floor", "stairs_up=2", "--swing-fold", "0.5,0.8",
+        "--swing-fold-keep", "0.5",
         "--gait-freq-range", "2,2.5", "--terminate-on", "base", "--envs", "4", "--iterations", "1",
         "--steps-per-env", "2", "--hidden", "16",
         "--run-dir", str(run),
@@ -310,13 +311,15 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     header = " ".join(r.stderr.split())
     assert (
         "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; level floor "
-        "stairs_up=2; commands facing the climb; swing fold hip 0.5, knee 0.8 rad; 0.5 of the fold kept; "
+        "stairs_up=2; commands facing the climb; heading commands; swing fold hip 0.5, knee 0.8 rad; "
+        "0.5 of the fold kept; "
         "gait clock 2-2.5 Hz; falls on base contact), "
         "4 envs" in header
     )
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
-    assert saved["commands"]["face_climb"] is True and saved["level_floor"] == {"stairs_up": 2}
+    assert saved["commands"]["face_climb"] is True and saved["commands"]["heading"] is True
+    assert saved["level_floor"] == {"stairs_up": 2}
     assert saved["gait"]["swing_fold_rad"] == [0.5, 0.8] and saved["gait"]["swing_fold_keep"] == 0.5
     assert saved["gait"]["freq_hz"] == [2.0, 2.5] and saved["termination"]["bodies"] == ["base"]
     from tron1cli.evaluation.protocol import EvalSpec, make_env
@@ -375,3 +378,11 @@ def test_falls_by_command_splits_the_whole_exposure(teacher_stage_ckpt):
     assert [r[0] for r in rows] == [label for label, _ in tool.BANDS]
     exposure, falls = sum(r[1] for r in rows), sum(r[2] for r in rows)
     assert 0.0 < exposure <= 3 * 40 * 0.02 + 1e-9 and 0 <= falls <= 3
+
+
+def test_climb_at_speed_scores_one_fixed_command(teacher_stage_ckpt):
+    tool = _lab_tool("climb_at_speed")
+    f = tool.climb_at_speed(str(teacher_stage_ckpt), 0.5, 9, envs=3, steps=40)
+    assert 0.0 <= f["traverse"] <= f["success"] <= 1.0  # a traverse is a success
+    assert f["risers"] >= 0.0 and f["progress"] is not None  # every env was asked to walk
+    assert all(0.0 <= f[k] <= 1.0 - f["success"] + 1e-9 for k in ("fell_tilt", "fell_base", "fell_thigh"))

@@ -8,6 +8,7 @@ import pytest
 from tron1cli.config import CommandConfig, EnvConfig, GaitConfig, NoiseConfig, TerminationConfig
 from tron1cli.env import robot, terminations
 from tron1cli.env.core import Tron1Env
+from tron1cli.env.math3d import yaw_of
 from tron1cli.env.observations import ObsLayout
 from tron1cli.env.rewards import make_reward_config
 
@@ -195,6 +196,49 @@ def test_face_climb_commands_forward_on_stairs_and_slopes_only():
         assert (c[~climb, 0] < 0).any() and (c[~climb, 1] != 0).any()
         assert (c[climb, 2] < 0).any()  # the yaw rate keeps both signs
     env.close()
+
+
+def test_heading_mode_steers_the_yaw_rate_to_a_world_heading():
+    """Heading mode: the yaw-rate command is 0.5/s x the wrapped heading error, clipped to the
+    yaw range; standing and imposed commands are not steered; a robot that holds its heading is
+    asked for no turn."""
+    from tron1cli.env.commands import Commands
+
+    cmds = Commands(CommandConfig(heading=True, standing_share=0.0), 4)
+    cmds.resample(np.arange(4), np.random.default_rng(0))
+    assert (cmds.value[:, 2] == 0).all() and cmds.steering.all()
+    cmds.heading[:] = [0.2, -0.4, 3.0, -3.0]
+    cmds.steer(np.array([0.0, 0.0, -3.0, 3.0]))
+    # errors 0.2, -0.4, 6.0 - 2 pi = -0.283, -6.0 + 2 pi = 0.283; x 0.5; all within +/-0.5
+    np.testing.assert_allclose(cmds.value[:, 2], [0.1, -0.2, -0.1416, 0.1416], atol=1e-4)
+    cmds.steer(np.array([2.0, -2.0, 0.0, 0.0]))  # errors -1.8, 1.6, 3.0, -3.0: clipped
+    np.testing.assert_allclose(cmds.value[:, 2], [-0.5, 0.5, 0.5, -0.5])
+    cmds.set(np.array([0]), np.array([[0.5, 0.0, 0.0]]))
+    cmds.steer(np.array([2.0, -2.0, 0.0, 0.0]))
+    assert cmds.value[0, 2] == 0.0  # imposed: not steered
+    off = Commands(CommandConfig(), 4)
+    off.resample(np.arange(4), np.random.default_rng(0))
+    before = off.value.copy()
+    off.steer(np.full(4, 1.0))
+    np.testing.assert_array_equal(off.value, before)
+
+
+def test_heading_mode_in_the_env_turns_the_robot_back_and_keeps_the_other_draws():
+    """In the env the yaw-rate command follows the base yaw each step; the commands drawn besides
+    the heading are those of the same seed without heading mode."""
+    env = make_env(16, terrain="flat", commands=CommandConfig(heading=True))
+    plain = make_env(16, terrain="flat")
+    env.reset()
+    plain.reset()
+    np.testing.assert_array_equal(env.commands.value[:, :2], plain.commands.value[:, :2])
+    env.step(np.zeros((16, 6)))
+    steering = env.commands.steering
+    assert steering.any()
+    yaw = yaw_of(env.state.base_quat)
+    err = np.angle(np.exp(1j * (env.commands.heading - yaw)))
+    np.testing.assert_allclose(env.commands.value[steering, 2], np.clip(0.5 * err, -0.5, 0.5)[steering])
+    env.close()
+    plain.close()
 
 
 def test_commands_face_nothing_by_default():

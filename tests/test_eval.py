@@ -447,18 +447,23 @@ def test_eval_tile_hand_computed():
     assert eval_terrain_config(cfg, 2.0, 0.5) is cfg  # 2 s x 1 m/s fits the training tile
 
 
-def carry_along_x(speed: float, clearance: float = 1.3):
+def carry_along_x(speed: float, clearance: float = 1.3, turn_at: int | None = None):
     """A ``before_step`` that carries every robot upright along world +x at ``speed`` (m/s),
-    ``clearance`` above the ground under it: a perfect walker, to test the window's bookkeeping."""
+    ``clearance`` above the ground under it: a perfect walker, to test the window's bookkeeping.
+    From step ``turn_at`` on it faces and walks along +y instead (a walker that leaves its path)."""
 
     def before_step(env: Tron1Env, t: int) -> None:
         ids = np.arange(env.n)
         ph = env.physics
         qpos, qvel, time = ph.qpos.copy(), np.zeros((env.n, ph.nv)), ph.time.copy()
         qpos[:, 0], qpos[:, 1] = speed * t * env.policy_dt, 0.0
-        qpos[:, 2] = env.ground_height(qpos[:, :2]) + clearance
         qpos[:, 3:7] = [1.0, 0.0, 0.0, 0.0]
         qvel[:, 0] = speed
+        if turn_at is not None and t >= turn_at:
+            qpos[:, 0], qpos[:, 1] = speed * turn_at * env.policy_dt, speed * (t - turn_at) * env.policy_dt
+            qpos[:, 3:7] = [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]  # yaw +90 deg
+            qvel[:, 0], qvel[:, 1] = 0.0, speed
+        qpos[:, 2] = env.ground_height(qpos[:, :2]) + clearance
         ph.set_state(ids, qpos, qvel)
         ph.state[:, 0] = time  # keep the sim clock (a reset clock reads as a diverged world)
 
@@ -466,10 +471,16 @@ def carry_along_x(speed: float, clearance: float = 1.3):
 
 
 def with_command_range(policy, lin_vel_x: tuple[float, float]):
-    """The policy as if trained with forward commands over ``lin_vel_x`` (m/s)."""
+    """The policy as if trained with forward commands over ``lin_vel_x`` (m/s), every robot
+    spawned facing +x (so that the carried walkers walk the commanded path)."""
     env = policy.run_cfg.env
     policy.run_cfg = replace(
-        policy.run_cfg, env=replace(env, commands=replace(env.commands, lin_vel_x=lin_vel_x))
+        policy.run_cfg,
+        env=replace(
+            env,
+            commands=replace(env.commands, lin_vel_x=lin_vel_x),
+            init=replace(env.init, random_yaw=False),
+        ),
     )
     return policy
 
@@ -487,6 +498,17 @@ def test_full_window_at_1p25_mps_on_flat(tiny_ckpt):
     assert res.metrics["command_progress"] == pytest.approx(1.0, abs=0.01)  # all it was asked
     assert res.metrics["traverse_rate"] == 1.0
     assert res.metrics["pitch_deg"] == pytest.approx(0.0, abs=0.5)  # carried upright
+
+
+def test_command_progress_counts_only_the_commanded_path(tiny_ckpt):
+    """Commanded straight ahead, a walker that turns 90 degrees after half the window and walks on
+    as fast along its new heading walked half its path: progress 0.5 (the base frame, where the
+    command turns with the robot, would count all of it)."""
+    pol = with_command_range(load_policy(tiny_ckpt), (-1.5, 1.5))
+    spec = EvalSpec("flat", num_envs=2, steps=500, speed=0.5, randomize=False)
+    res = run_batch(pol, spec, before_step=carry_along_x(0.5, turn_at=250))
+    assert res.metrics["success_rate"] == 1.0
+    assert res.metrics["command_progress"] == pytest.approx(0.5, abs=0.01)
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

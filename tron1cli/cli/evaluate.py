@@ -255,7 +255,7 @@ def eval_cmd(
     angular_velocity_error: mean |w_x|, |w_y| (rad/s); velocity_tracking_error: |v_cmd,xy - v_xy|
     (m/s, base frame); reconstruction_error_cm: mean |h_hat - h| of the student's heightmap (cm);
     exposure_s: mean time an env walked the terrain under test (s; survivors: the whole window);
-    command_progress: distance walked along the command over the distance commanded (ours);
+    command_progress: distance walked along the commanded path over the distance commanded (ours);
     pitch_deg: mean signed base pitch (degrees, + nose down); traverse_rate: share of envs that
     succeeded and walked at least half their commanded distance.
     """

@@ -83,6 +83,7 @@ PRESET_OPTIONS = (
     "init_level",
     "curriculum_rule",
     "face_climb",
+    "heading",
     "level_floor",
     "swing_fold",
     "swing_fold_keep",
@@ -305,6 +306,12 @@ def train(
         "--face-climb/--no-face-climb",
         help="On stairs and slopes, commands face the climb: forward only (|v_x|), no sideways speed.",
     ),
+    heading: bool = typer.Option(
+        False,
+        "--heading/--no-heading",
+        help="Heading mode: each command draws a world heading and the yaw-rate command steers the "
+        "robot to it (0.5/s x heading error), so that tracking pays for walking straight, not in circles.",
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -474,6 +481,7 @@ def train(
             init_level=init_level if "init_level" in given else base.init_level,
             curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
             face_climb=face_climb if "face_climb" in given else base.face_climb,
+            heading=heading if "heading" in given else base.heading,
             swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
             swing_fold_keep=swing_fold_keep if "swing_fold_keep" in given else base.swing_fold_keep,
             gait_freq_hz=_parse_freq(gait_freq_range) if "gait_freq_range" in given else base.gait_freq_hz,
@@ -588,6 +596,7 @@ def _saved_values(cfg) -> dict:
         "init_level": e.max_init_level,
         "curriculum_rule": e.curriculum_rule,
         "face_climb": e.commands.face_climb,
+        "heading": e.commands.heading,
         "level_floor": dict(e.level_floor),
         "swing_fold": tuple(e.gait.swing_fold_rad),
         "swing_fold_keep": e.gait.swing_fold_keep,
@@ -791,6 +800,8 @@ def _terrain_summary(e) -> str:
         notes.append("level floor " + ", ".join(f"{k}={v}" for k, v in e.level_floor.items()))
     if e.commands.face_climb:
         notes.append("commands facing the climb")
+    if e.commands.heading:
+        notes.append("heading commands")
     if any(e.gait.swing_fold_rad):
         notes.append("swing fold hip {:g}, knee {:g} rad".format(*e.gait.swing_fold_rad))
     if e.gait.swing_fold_keep:

@@ -30,7 +30,11 @@ class CommandConfig:
     between resamples; standing_share: fraction of commands that are exactly zero; face_climb:
     on stairs and slopes (:data:`FACE_CLIMB_GROUPS`) the command faces the climb: forward speed
     drawn as |v_x| and no sideways speed (yaw rate as drawn), as the humanoid configs of Isaac Lab
-    command their rough-terrain robots.
+    command their rough-terrain robots; heading: heading mode, each command draws a world heading
+    (uniform, rad) instead of a yaw rate, and every policy step the yaw-rate command is
+    ``heading_kp * wrap(heading - yaw)`` clipped to ``ang_vel_yaw`` (a robot that turns away from
+    its heading is asked to turn back, so that walking straight in the world is what tracking
+    pays; the policy still sees a yaw rate); heading_kp: 1/s.
     """
 
     lin_vel_x: tuple[float, float] = (-1.0, 1.0)
@@ -39,8 +43,12 @@ class CommandConfig:
     resample_s: tuple[float, float] = (4.0, 8.0)
     standing_share: float = 0.1
     face_climb: bool = False
+    heading: bool = False
+    heading_kp: float = 0.5
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.heading_kp) and self.heading_kp > 0):
+            raise ValueError(f"heading_kp must be positive, got {self.heading_kp!r}")
         for name in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw", "resample_s"):
             _check_range(name, getattr(self, name))
         if self.resample_s[0] <= 0:

@@ -82,6 +82,7 @@ class TrainPreset:
     terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
     on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform);
     face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``);
+    heading: heading-mode commands (``CommandConfig.heading``);
     level_floor: terrain type -> lowest level its envs start on or move down to;
     swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``);
     swing_fold_keep: the share of it the action cannot take away (``GaitConfig.swing_fold_keep``);
@@ -112,6 +113,7 @@ class TrainPreset:
     init_level: int = 0
     curriculum_rule: str = "distance"
     face_climb: bool = False
+    heading: bool = False
     level_floor: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     swing_fold: tuple[float, float] = (0.0, 0.0)
     swing_fold_keep: float = 0.0

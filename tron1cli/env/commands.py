@@ -15,6 +15,9 @@ class Commands:
         time_left: seconds until each env's next resample (N,).
         gait_freq: gait frequency (N,) in Hz; gait_phase: clock phase (N,) in [0, 1).
         facing: (N,) bool, the envs whose commands face the climb (with ``cfg.face_climb``).
+        heading: world heading (N,) in rad that each env is steered to (with ``cfg.heading``);
+        steering: (N,) bool, the envs whose yaw rate :meth:`steer` sets (heading mode, moving
+        command, not imposed by :meth:`set`).
     """
 
     def __init__(
@@ -33,6 +36,8 @@ class Commands:
         self.time_left = np.zeros(num_envs)
         self.gait_freq = np.full(num_envs, float(np.mean(self.gait.freq_hz)))
         self.gait_phase = np.zeros(num_envs)
+        self.heading = np.zeros(num_envs)
+        self.steering = np.zeros(num_envs, dtype=bool)
 
     def resample(self, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Draw new commands and resample intervals for envs ``ids``."""
@@ -52,6 +57,19 @@ class Commands:
         self.value[ids] = cmd
         self.time_left[ids] = rng.uniform(*c.resample_s, size=k)
         self.gait_freq[ids] = rng.uniform(*self.gait.freq_hz, size=k)
+        if c.heading:  # drawn last, so that the other draws do not depend on the mode
+            self.heading[ids] = rng.uniform(-np.pi, np.pi, size=k)
+            self.value[ids, 2] = 0.0  # until the first steer() sees the robot's yaw
+            self.steering[ids] = ~standing
+
+    def steer(self, yaw: np.ndarray) -> None:
+        """Heading mode: set the yaw-rate command of the steering envs from their yaw (N,) in rad,
+        ``heading_kp * wrap(heading - yaw)`` clipped to the yaw-rate range. No-op otherwise."""
+        if not self.steering.any():
+            return
+        c, ids = self.cfg, np.flatnonzero(self.steering)
+        err = np.angle(np.exp(1j * (self.heading[ids] - yaw[ids])))
+        self.value[ids, 2] = np.clip(c.heading_kp * err, *c.ang_vel_yaw)
 
     def restart_clock(self, ids: np.ndarray) -> None:
         """Restart the gait clock of envs ``ids`` at phase 0 (at reset)."""
@@ -66,6 +84,8 @@ class Commands:
         return due
 
     def set(self, ids: np.ndarray, value: np.ndarray, hold_s: float = np.inf) -> None:
-        """Impose commands (k, 3) on envs ``ids`` for ``hold_s`` seconds (eval, deploy)."""
+        """Impose commands (k, 3) on envs ``ids`` for ``hold_s`` seconds (eval, deploy); heading
+        mode stops steering them."""
         self.value[ids] = value
+        self.steering[ids] = False
         self.time_left[ids] = hold_s

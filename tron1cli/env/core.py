@@ -259,6 +259,7 @@ class Tron1Env:
             for r in rewards.values():
                 r[unstable] = 0.0
         self.commands.tick(self.policy_dt, self.rng)
+        self.commands.steer(yaw_of(self.state.base_quat))
 
         done = term.done
         ids = np.flatnonzero(done)

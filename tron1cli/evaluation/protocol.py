@@ -23,11 +23,15 @@ Metrics (Table I), averaged over the steps of envs still walking:
   with perception only; None otherwise);
 - ``exposure_s`` (s): mean time an env spent walking on the terrain under test (a survivor:
   the whole window, S x 0.02 s; a faller: until its fall);
-- ``command_progress`` (ours, not the paper's): the distance walked along the commanded
-  direction over the distance commanded, sum_t v_xy . v_cmd / |v_cmd| over sum_t |v_cmd| (base
-  frame, steps of walking envs with a moving command). Success is survival, as in the paper, so a
-  robot that stands still in front of a staircase succeeds; this says how much of the commanded
-  walking it did (1: all of it; 0: none; None without a moving command).
+- ``command_progress`` (ours, not the paper's): the distance walked along the commanded path
+  over the distance commanded, sum_t v_xy . d_t over sum_t |v_cmd| (world frame, steps of
+  walking envs with a moving command), where d_t is the command's direction turned to the path's
+  heading: the robot's yaw when the command was drawn, turned since by the commanded yaw rate. A
+  robot that turns away from its path (walks along a riser, or circles on the landing, instead
+  of up the stairs) earns only the cosine of its error, however fast it walks. Success is
+  survival, as in the paper, so a robot that stands still in front of a staircase succeeds; this
+  says how much of the commanded walking it did (1: all of it; 0: none; None without a moving
+  command).
 - ``pitch_deg`` (ours): mean signed base pitch (ZYX Euler, as the tilt termination) in degrees,
   positive nose down; the orientation error's direction (a policy that walks leaning back reads negative);
 - ``traverse_rate`` (ours, 0-1): share of envs that succeeded *and* walked at least
@@ -47,7 +51,7 @@ import numpy as np
 
 from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, StepResult, Tron1Env
-from tron1cli.env.math3d import roll_pitch
+from tron1cli.env.math3d import roll_pitch, rotate_z, yaw_of
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terminations import FALL_CAUSES
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
@@ -251,7 +255,7 @@ def pitch_deg(gravity_b: np.ndarray) -> np.ndarray:
 def command_progress_terms(
     v_cmd_xy: np.ndarray, v_xy: np.ndarray, min_cmd: float = 0.05
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per env (k, 2 inputs, base frame, m/s): the speed along the command, v_xy . v_cmd / |v_cmd|,
+    """Per env (k, 2 inputs in one frame, m/s): the speed along the command, v_xy . v_cmd / |v_cmd|,
     and the commanded speed |v_cmd|, both (k,) m/s and 0 where the command is not faster than
     ``min_cmd`` (a standing command asks for no distance)."""
     speed = np.linalg.norm(v_cmd_xy, axis=1)
@@ -335,6 +339,10 @@ def run_batch(
         asked = np.zeros(n)
         ground0 = env.ground_height(env.state.base_pos[:, :2])
         rise = np.zeros(n)
+        # the heading of each env's commanded path (rad, world): its yaw when the command was
+        # drawn, turned since by the commanded yaw rate
+        path_yaw = yaw_of(env.state.base_quat)
+        cmd_prev = env.commands.value[:, :2].copy()
         for t in range(spec.steps):
             walking = ~fell & ~left
             action, hidden, h_hat = policy.act(obs, hidden)
@@ -347,6 +355,10 @@ def run_batch(
             if stream is not None:
                 extras = {"h_hat": h_hat} if h_hat.shape[1] else None
                 stream.log_step(env, stream_env, t, t * env.policy_dt, extras=extras)
+            cmd = env.commands.value.copy()  # the command in force during this step
+            fresh = np.any(cmd[:, :2] != cmd_prev, axis=1)
+            path_yaw[fresh] = yaw_of(env.state.base_quat[fresh])
+            cmd_prev = cmd[:, :2]
             res = env.step(action)
             if video is not None:
                 video.step(env, (t + 1) * env.policy_dt, res.done)
@@ -373,7 +385,8 @@ def run_batch(
             for key, e in zip(METRICS[1:4], errs, strict=True):
                 sums[key] += float(e.sum())
             pitch_sum += float(pitch_deg(s.projected_gravity[ok]).sum())
-            a, c = command_progress_terms(env.commands.value[ok, :2], s.base_lin_vel_b[ok, :2])
+            a, c = command_progress_terms(rotate_z(cmd[ok], path_yaw[ok]), s.base_lin_vel_w[ok, :2])
+            path_yaw += cmd[:, 2] * env.policy_dt
             along[ok] += a * env.policy_dt
             asked[ok] += c * env.policy_dt
             count += int(ok.sum())

@@ -142,7 +142,7 @@ def run_config(
         max_init_level=preset.init_level,
         curriculum_rule=preset.curriculum_rule,
         level_floor=dict(preset.level_floor),
-        commands=CommandConfig(face_climb=preset.face_climb),
+        commands=CommandConfig(face_climb=preset.face_climb, heading=preset.heading),
         termination=TerminationConfig(bodies=tuple(preset.terminate_on)),
     )
     learner_cfg = replace(

@@ -1,0 +1,59 @@
+"""Does a teacher climb when every env is asked to walk straight ahead? The climb probe's figures
+at one fixed command.
+
+A lab tool, not a ``tron1`` command: on stairs up at the given levels, every env is commanded
+``--speed`` m/s forward with no sideways speed and no yaw rate for the whole window (128 envs x
+500 steps, randomisation on, full window, seed 0), and the teacher of each checkpoint is scored as
+the climb probe scores it: success, traverse, command progress (along the commanded path) and
+risers climbed per env. A teacher that walks but turns off its path reads low progress and few
+risers here, whatever the training commands let it do.
+
+    python tools/climb_at_speed.py policies/runs/climb_phase8/checkpoints/latest.pt --speed 0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from tron1cli.env.terrain import riser_m
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, fall_shares, risers_climbed
+from tron1cli.evaluation.protocol import EvalSpec, run_batch
+from tron1cli.policy.runtime import load_policy
+
+
+def climb_at_speed(path: str, speed: float, level: int, envs: int = CLIMB_ENVS, steps: int = 500) -> dict:
+    """Figures (shares 0-1, progress 0-1, risers per env) of the teacher of checkpoint ``path``."""
+    policy = load_policy(path, actor="teacher")
+    r = run_batch(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0))
+    m = r.metrics
+    tilt, base, thigh = fall_shares(r.fall_causes)
+    return {
+        "success": m["success_rate"],
+        "traverse": m["traverse_rate"],
+        "progress": m["command_progress"],
+        "risers": risers_climbed(r.rise_m, riser_m(policy.run_cfg.env.terrain_cfg, level)),
+        "fell_tilt": tilt,
+        "fell_base": base,
+        "fell_thigh": thigh,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoints", nargs="+")
+    ap.add_argument("--speed", type=float, default=0.5, help="forward command (m/s)")
+    ap.add_argument("--levels", default="6,9", help="stairs-up levels, comma-separated")
+    args = ap.parse_args()
+    print(f"stairs up at {args.speed:g} m/s straight ahead: success %, traverse %, progress, risers per env")
+    for path in args.checkpoints:
+        for level in (int(v) for v in args.levels.split(",")):
+            f = climb_at_speed(path, args.speed, level)
+            print(
+                f"{path} level {level}: {100 * f['success']:.1f} {100 * f['traverse']:.1f} "
+                f"{f['progress']:.2f} {f['risers']:.2f}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
