@@ -16,6 +16,7 @@ from conftest import tron1
 from tron1cli.cli.evaluate import parse_groups, parse_speeds
 from tron1cli.config.env import CommandConfig
 from tron1cli.env.core import EDGE_MARGIN_M, Tron1Env
+from tron1cli.env.math3d import rotate_z
 from tron1cli.env.terrain import TerrainConfig
 from tron1cli.errors import Tron1Error
 from tron1cli.evaluation.protocol import (
@@ -509,6 +510,36 @@ def test_command_progress_counts_only_the_commanded_path(tiny_ckpt):
     res = run_batch(pol, spec, before_step=carry_along_x(0.5, turn_at=250))
     assert res.metrics["success_rate"] == 1.0
     assert res.metrics["command_progress"] == pytest.approx(0.5, abs=0.01)
+
+
+def test_command_progress_in_heading_mode_runs_along_the_heading(tiny_ckpt):
+    """With heading-mode training commands, the path of a moving command is the world heading the
+    robot is steered to: a walker carried along +x is credited its world velocity along it."""
+    pol = with_command_range(load_policy(tiny_ckpt), (0.2, 1.0))
+    env_cfg = pol.run_cfg.env
+    heading = replace(env_cfg.commands, heading=True, standing_share=0.0)
+    pol.run_cfg = replace(pol.run_cfg, env=replace(env_cfg, commands=heading))
+    carry = carry_along_x(0.5)
+    sums = {"along": 0.0, "asked": 0.0}
+    path = {}
+
+    def before_step(env: Tron1Env, t: int) -> None:
+        carry(env, t)
+        c = env.commands
+        assert c.steering.all()
+        path["speed"] = np.linalg.norm(c.value[:, :2], axis=1)
+        path["dir"] = rotate_z(c.value[:, :2] / path["speed"][:, None], c.heading)
+
+    def after_step(env: Tron1Env, res, walking: np.ndarray) -> None:
+        ok = walking & ~res.done
+        v = env.state.base_lin_vel_w[ok, :2]
+        sums["along"] += float(np.einsum("ij,ij->i", v, path["dir"][ok]).sum())
+        sums["asked"] += float(path["speed"][ok].sum())
+
+    spec = EvalSpec("flat", num_envs=4, steps=60, randomize=False)
+    res = run_batch(pol, spec, before_step=before_step, after_step=after_step)
+    assert not res.fell.any()
+    assert res.metrics["command_progress"] == pytest.approx(sums["along"] / sums["asked"], abs=1e-9)
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

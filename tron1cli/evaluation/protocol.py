@@ -26,7 +26,8 @@ Metrics (Table I), averaged over the steps of envs still walking:
 - ``command_progress`` (ours, not the paper's): the distance walked along the commanded path
   over the distance commanded, sum_t v_xy . d_t over sum_t |v_cmd| (world frame, steps of
   walking envs with a moving command), where d_t is the command's direction turned to the path's
-  heading: the robot's yaw when the command was drawn, turned since by the commanded yaw rate. A
+  heading: the robot's yaw when the command was drawn, turned since by the commanded yaw rate
+  (with heading-mode commands, the world heading the robot is steered to). A
   robot that turns away from its path (walks along a riser, or circles on the landing, instead
   of up the stairs) earns only the cosine of its error, however fast it walks. Success is
   survival, as in the paper, so a robot that stands still in front of a staircase succeeds; this
@@ -359,6 +360,8 @@ def run_batch(
             fresh = np.any(cmd[:, :2] != cmd_prev, axis=1)
             path_yaw[fresh] = yaw_of(env.state.base_quat[fresh])
             cmd_prev = cmd[:, :2]
+            # heading mode: the path runs along the world heading the robot is steered to
+            path_yaw = np.where(env.commands.steering, env.commands.heading, path_yaw)
             res = env.step(action)
             if video is not None:
                 video.step(env, (t + 1) * env.policy_dt, res.done)
