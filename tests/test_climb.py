@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -301,7 +302,8 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     run = tmp_path / "mix"
     r = tron1(
         "train", "--terrain", "stairs", "--terrain-mix", "stairs_up=3,stairs_down=1", "--init-level", "9",
-        "--face-climb", "--heading", "--level-floor", "stairs_up=2", "--swing-fold", "0.5,0.8",
+        "--face-climb", "--heading", "--heading-spread", "30", "--level-floor", "stairs_up=2",
+        "--swing-fold", "0.5,0.8",
         "--swing-fold-keep", "0.5",
         "--gait-freq-range", "2,2.5", "--terminate-on", "base", "--envs", "4", "--iterations", "1",
         "--steps-per-env", "2", "--hidden", "16",
@@ -311,7 +313,8 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     header = " ".join(r.stderr.split())
     assert (
         "tron1 train stairs (mix stairs_up=3, stairs_down=1; starting on levels 0-9; level floor "
-        "stairs_up=2; commands facing the climb; heading commands; swing fold hip 0.5, knee 0.8 rad; "
+        "stairs_up=2; commands facing the climb; heading commands within 30 deg; swing fold hip 0.5, "
+        "knee 0.8 rad; "
         "0.5 of the fold kept; "
         "gait clock 2-2.5 Hz; falls on base contact), "
         "4 envs" in header
@@ -319,6 +322,7 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
     saved = json.loads((run / "config.json").read_text())["env"]
     assert saved["terrain_mix"] == {"stairs_up": 3.0, "stairs_down": 1.0} and saved["max_init_level"] == 9
     assert saved["commands"]["face_climb"] is True and saved["commands"]["heading"] is True
+    assert saved["commands"]["heading_spread_rad"] == pytest.approx(math.radians(30))
     assert saved["level_floor"] == {"stairs_up": 2}
     assert saved["gait"]["swing_fold_rad"] == [0.5, 0.8] and saved["gait"]["swing_fold_keep"] == 0.5
     assert saved["gait"]["freq_hz"] == [2.0, 2.5] and saved["termination"]["bodies"] == ["base"]

@@ -207,6 +207,7 @@ def test_heading_mode_steers_the_yaw_rate_to_a_world_heading():
     cmds = Commands(CommandConfig(heading=True, standing_share=0.0), 4)
     cmds.resample(np.arange(4), np.random.default_rng(0))
     assert (cmds.value[:, 2] == 0).all() and cmds.steering.all()
+    cmds.steer(np.zeros(4))  # anchors the drawn headings to the robot's yaw
     cmds.heading[:] = [0.2, -0.4, 3.0, -3.0]
     cmds.steer(np.array([0.0, 0.0, -3.0, 3.0]))
     # errors 0.2, -0.4, 6.0 - 2 pi = -0.283, -6.0 + 2 pi = 0.283; x 0.5; all within +/-0.5
@@ -221,6 +222,25 @@ def test_heading_mode_steers_the_yaw_rate_to_a_world_heading():
     before = off.value.copy()
     off.steer(np.full(4, 1.0))
     np.testing.assert_array_equal(off.value, before)
+
+
+def test_heading_is_drawn_within_its_spread_of_the_robot_yaw():
+    """A heading is drawn as an offset within +/- heading_spread_rad and anchored to the yaw the
+    robot has at the first steer() after the draw (later steers do not move it)."""
+    from tron1cli.env.commands import Commands
+
+    n = 2000
+    cmds = Commands(CommandConfig(heading=True, heading_spread_rad=0.3), n)
+    cmds.resample(np.arange(n), np.random.default_rng(1))
+    yaw = np.random.default_rng(2).uniform(-np.pi, np.pi, n)
+    cmds.steer(yaw)
+    off = np.angle(np.exp(1j * (cmds.heading - yaw)))
+    assert np.abs(off).max() <= 0.3 + 1e-12 and np.abs(off).max() > 0.29
+    anchored = cmds.heading.copy()
+    cmds.steer(yaw + 1.0)
+    np.testing.assert_array_equal(cmds.heading, anchored)
+    with pytest.raises(ValueError, match="heading_spread_rad"):
+        CommandConfig(heading_spread_rad=4.0)
 
 
 def test_heading_mode_in_the_env_turns_the_robot_back_and_keeps_the_other_draws():

@@ -84,6 +84,7 @@ PRESET_OPTIONS = (
     "curriculum_rule",
     "face_climb",
     "heading",
+    "heading_spread",
     "level_floor",
     "swing_fold",
     "swing_fold_keep",
@@ -312,6 +313,14 @@ def train(
         help="Heading mode: each command draws a world heading and the yaw-rate command steers the "
         "robot to it (0.5/s x heading error), so that tracking pays for walking straight, not in circles.",
     ),
+    heading_spread: float = typer.Option(
+        180.0,
+        "--heading-spread",
+        min=0.0,
+        max=180.0,
+        help="With --heading: each heading is drawn within this angle (degrees) of the robot's yaw "
+        "(180: any heading; small: walk on about where it faces, no turn first).",
+    ),
     pushes: bool | None = typer.Option(
         None,
         "--pushes/--no-pushes",
@@ -482,6 +491,7 @@ def train(
             curriculum_rule=curriculum_rule if "curriculum_rule" in given else base.curriculum_rule,
             face_climb=face_climb if "face_climb" in given else base.face_climb,
             heading=heading if "heading" in given else base.heading,
+            heading_spread_deg=heading_spread if "heading_spread" in given else base.heading_spread_deg,
             swing_fold=_parse_fold(swing_fold) if "swing_fold" in given else base.swing_fold,
             swing_fold_keep=swing_fold_keep if "swing_fold_keep" in given else base.swing_fold_keep,
             gait_freq_hz=_parse_freq(gait_freq_range) if "gait_freq_range" in given else base.gait_freq_hz,
@@ -597,6 +607,7 @@ def _saved_values(cfg) -> dict:
         "curriculum_rule": e.curriculum_rule,
         "face_climb": e.commands.face_climb,
         "heading": e.commands.heading,
+        "heading_spread": round(math.degrees(e.commands.heading_spread_rad), 6),
         "level_floor": dict(e.level_floor),
         "swing_fold": tuple(e.gait.swing_fold_rad),
         "swing_fold_keep": e.gait.swing_fold_keep,
@@ -801,7 +812,8 @@ def _terrain_summary(e) -> str:
     if e.commands.face_climb:
         notes.append("commands facing the climb")
     if e.commands.heading:
-        notes.append("heading commands")
+        spread = math.degrees(e.commands.heading_spread_rad)
+        notes.append("heading commands" + (f" within {spread:g} deg" if spread < 180.0 else ""))
     if any(e.gait.swing_fold_rad):
         notes.append("swing fold hip {:g}, knee {:g} rad".format(*e.gait.swing_fold_rad))
     if e.gait.swing_fold_keep:

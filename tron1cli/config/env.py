@@ -34,7 +34,9 @@ class CommandConfig:
     (uniform, rad) instead of a yaw rate, and every policy step the yaw-rate command is
     ``heading_kp * wrap(heading - yaw)`` clipped to ``ang_vel_yaw`` (a robot that turns away from
     its heading is asked to turn back, so that walking straight in the world is what tracking
-    pays; the policy still sees a yaw rate); heading_kp: 1/s.
+    pays; the policy still sees a yaw rate); heading_kp: 1/s; heading_spread_rad: the heading is
+    drawn uniformly within this angle (rad, 0-pi) of the robot's yaw at its first step under the
+    command (pi: any heading; small: walk on about where it faces, no turn first).
     """
 
     lin_vel_x: tuple[float, float] = (-1.0, 1.0)
@@ -45,8 +47,11 @@ class CommandConfig:
     face_climb: bool = False
     heading: bool = False
     heading_kp: float = 0.5
+    heading_spread_rad: float = math.pi
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.heading_spread_rad <= math.pi:
+            raise ValueError(f"heading_spread_rad must lie in [0, pi], got {self.heading_spread_rad!r}")
         if not (math.isfinite(self.heading_kp) and self.heading_kp > 0):
             raise ValueError(f"heading_kp must be positive, got {self.heading_kp!r}")
         for name in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw", "resample_s"):

@@ -82,7 +82,8 @@ class TrainPreset:
     terrain_mix: terrain type -> share of the envs (empty: equal shares); init_level: envs start
     on terrain levels 0..init_level; curriculum_rule: how levels move (distance, falls, uniform);
     face_climb: commands face the climb on stairs and slopes (``CommandConfig.face_climb``);
-    heading: heading-mode commands (``CommandConfig.heading``);
+    heading: heading-mode commands (``CommandConfig.heading``); heading_spread_deg: their headings
+    within this angle (degrees) of the robot's yaw;
     level_floor: terrain type -> lowest level its envs start on or move down to;
     swing_fold: (hip, knee) rad added to a swinging leg's targets (``GaitConfig.swing_fold_rad``);
     swing_fold_keep: the share of it the action cannot take away (``GaitConfig.swing_fold_keep``);
@@ -114,6 +115,7 @@ class TrainPreset:
     curriculum_rule: str = "distance"
     face_climb: bool = False
     heading: bool = False
+    heading_spread_deg: float = 180.0
     level_floor: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     swing_fold: tuple[float, float] = (0.0, 0.0)
     swing_fold_keep: float = 0.0

@@ -15,7 +15,8 @@ class Commands:
         time_left: seconds until each env's next resample (N,).
         gait_freq: gait frequency (N,) in Hz; gait_phase: clock phase (N,) in [0, 1).
         facing: (N,) bool, the envs whose commands face the climb (with ``cfg.face_climb``).
-        heading: world heading (N,) in rad that each env is steered to (with ``cfg.heading``);
+        heading: world heading (N,) in rad that each env is steered to (with ``cfg.heading``; drawn
+        as an offset from the robot's yaw, which the first :meth:`steer` after a draw adds);
         steering: (N,) bool, the envs whose yaw rate :meth:`steer` sets (heading mode, moving
         command, not imposed by :meth:`set`).
     """
@@ -38,6 +39,7 @@ class Commands:
         self.gait_phase = np.zeros(num_envs)
         self.heading = np.zeros(num_envs)
         self.steering = np.zeros(num_envs, dtype=bool)
+        self._unanchored = np.zeros(num_envs, dtype=bool)  # heading still an offset from the yaw
 
     def resample(self, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Draw new commands and resample intervals for envs ``ids``."""
@@ -58,13 +60,18 @@ class Commands:
         self.time_left[ids] = rng.uniform(*c.resample_s, size=k)
         self.gait_freq[ids] = rng.uniform(*self.gait.freq_hz, size=k)
         if c.heading:  # drawn last, so that the other draws do not depend on the mode
-            self.heading[ids] = rng.uniform(-np.pi, np.pi, size=k)
-            self.value[ids, 2] = 0.0  # until the first steer() sees the robot's yaw
+            self.heading[ids] = rng.uniform(-c.heading_spread_rad, c.heading_spread_rad, size=k)
+            self._unanchored[ids] = True
+            self.value[ids, 2] = 0.0  # until steer() sees the robot's yaw
             self.steering[ids] = ~standing
 
     def steer(self, yaw: np.ndarray) -> None:
         """Heading mode: set the yaw-rate command of the steering envs from their yaw (N,) in rad,
-        ``heading_kp * wrap(heading - yaw)`` clipped to the yaw-rate range. No-op otherwise."""
+        ``heading_kp * wrap(heading - yaw)`` clipped to the yaw-rate range, after anchoring the
+        headings drawn since the last call to the robot's yaw. No-op otherwise."""
+        fresh = self._unanchored
+        self.heading[fresh] = np.angle(np.exp(1j * (self.heading[fresh] + yaw[fresh])))
+        fresh[:] = False
         if not self.steering.any():
             return
         c, ids = self.cfg, np.flatnonzero(self.steering)

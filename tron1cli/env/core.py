@@ -173,6 +173,7 @@ class Tron1Env:
         if stagger:
             self.episode_step[:] = self.rng.integers(0, self.max_episode_steps, self.n)
         self.state = read_state(self.physics)
+        self.commands.steer(yaw_of(self.state.base_quat))
         self.lipm.reset(ids, self.state.foot_pos)
         self._depth_stale[:] = False
         self._render_depth(np.arange(self.cfg.depth_from, self.n))  # a first capture for every student
@@ -259,7 +260,6 @@ class Tron1Env:
             for r in rewards.values():
                 r[unstable] = 0.0
         self.commands.tick(self.policy_dt, self.rng)
-        self.commands.steer(yaw_of(self.state.base_quat))
 
         done = term.done
         ids = np.flatnonzero(done)
@@ -282,6 +282,7 @@ class Tron1Env:
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
+        self.commands.steer(yaw_of(self.state.base_quat))  # heading mode; after resets: their yaw
         self._depth_clock += self.policy_dt
         scheduled = self._depth_clock >= 1.0 / self.cfg.depth_hz
         if scheduled:

@@ -142,7 +142,11 @@ def run_config(
         max_init_level=preset.init_level,
         curriculum_rule=preset.curriculum_rule,
         level_floor=dict(preset.level_floor),
-        commands=CommandConfig(face_climb=preset.face_climb, heading=preset.heading),
+        commands=CommandConfig(
+            face_climb=preset.face_climb,
+            heading=preset.heading,
+            heading_spread_rad=math.radians(preset.heading_spread_deg),
+        ),
         termination=TerminationConfig(bodies=tuple(preset.terminate_on)),
     )
     learner_cfg = replace(
