@@ -386,7 +386,7 @@ def test_falls_by_command_splits_the_whole_exposure(teacher_stage_ckpt):
 
 def test_climb_at_speed_scores_one_fixed_command(teacher_stage_ckpt):
     tool = _lab_tool("climb_at_speed")
-    f = tool.climb_at_speed(str(teacher_stage_ckpt), 0.5, 9, envs=3, steps=40)
-    assert 0.0 <= f["traverse"] <= f["success"] <= 1.0  # a traverse is a success
-    assert f["risers"] >= 0.0 and f["progress"] is not None  # every env was asked to walk
-    assert all(0.0 <= f[k] <= 1.0 - f["success"] + 1e-9 for k in ("fell_tilt", "fell_base", "fell_thigh"))
+    row = tool.climb_at_speed(str(teacher_stage_ckpt), 0.5, 9, envs=3, steps=40)
+    assert 0.0 <= row.traverse <= row.success <= 1.0  # a traverse is a success
+    assert row.risers >= 0.0 and row.progress is not None  # every env was asked to walk
+    assert all(0.0 <= f <= 1.0 - row.success + 1e-9 for f in (row.fell_tilt, row.fell_base, row.fell_thigh))

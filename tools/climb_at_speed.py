@@ -16,26 +16,17 @@ from __future__ import annotations
 import argparse
 
 from tron1cli.env.terrain import riser_m
-from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, fall_shares, risers_climbed
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, ClimbRow
 from tron1cli.evaluation.protocol import EvalSpec, run_batch
 from tron1cli.policy.runtime import load_policy
 
 
-def climb_at_speed(path: str, speed: float, level: int, envs: int = CLIMB_ENVS, steps: int = 500) -> dict:
-    """Figures (shares 0-1, progress 0-1, risers per env) of the teacher of checkpoint ``path``."""
+def climb_at_speed(path: str, speed: float, level: int, envs: int = CLIMB_ENVS, steps: int = 500) -> ClimbRow:
+    """The probe's row (:class:`tron1cli.evaluation.climb.ClimbRow`) of the teacher of checkpoint
+    ``path`` on stairs up at ``level``, every env commanded ``speed`` m/s straight ahead."""
     policy = load_policy(path, actor="teacher")
     r = run_batch(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0))
-    m = r.metrics
-    tilt, base, thigh = fall_shares(r.fall_causes)
-    return {
-        "success": m["success_rate"],
-        "traverse": m["traverse_rate"],
-        "progress": m["command_progress"],
-        "risers": risers_climbed(r.rise_m, riser_m(policy.run_cfg.env.terrain_cfg, level)),
-        "fell_tilt": tilt,
-        "fell_base": base,
-        "fell_thigh": thigh,
-    }
+    return ClimbRow.of("teacher", level, riser_m(policy.run_cfg.env.terrain_cfg, level), r)
 
 
 def main() -> None:
@@ -47,10 +38,10 @@ def main() -> None:
     print(f"stairs up at {args.speed:g} m/s straight ahead: success %, traverse %, progress, risers per env")
     for path in args.checkpoints:
         for level in (int(v) for v in args.levels.split(",")):
-            f = climb_at_speed(path, args.speed, level)
+            row = climb_at_speed(path, args.speed, level)
             print(
-                f"{path} level {level}: {100 * f['success']:.1f} {100 * f['traverse']:.1f} "
-                f"{f['progress']:.2f} {f['risers']:.2f}",
+                f"{path} level {level}: {100 * row.success:.1f} {100 * row.traverse:.1f} "
+                f"{row.progress:.2f} {row.risers:.2f}",
                 flush=True,
             )
 

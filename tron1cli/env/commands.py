@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tron1cli.config.env import CommandConfig, GaitConfig
+from tron1cli.env.math3d import wrap_angle
 
 
 class Commands:
@@ -70,12 +71,12 @@ class Commands:
         ``heading_kp * wrap(heading - yaw)`` clipped to the yaw-rate range, after anchoring the
         headings drawn since the last call to the robot's yaw. No-op otherwise."""
         fresh = self._unanchored
-        self.heading[fresh] = np.angle(np.exp(1j * (self.heading[fresh] + yaw[fresh])))
+        self.heading[fresh] = wrap_angle(self.heading[fresh] + yaw[fresh])
         fresh[:] = False
         if not self.steering.any():
             return
         c, ids = self.cfg, np.flatnonzero(self.steering)
-        err = np.angle(np.exp(1j * (self.heading[ids] - yaw[ids])))
+        err = wrap_angle(self.heading[ids] - yaw[ids])
         self.value[ids, 2] = np.clip(c.heading_kp * err, *c.ang_vel_yaw)
 
     def restart_clock(self, ids: np.ndarray) -> None:

@@ -173,7 +173,7 @@ class Tron1Env:
         if stagger:
             self.episode_step[:] = self.rng.integers(0, self.max_episode_steps, self.n)
         self.state = read_state(self.physics)
-        self.commands.steer(yaw_of(self.state.base_quat))
+        self._steer()
         self.lipm.reset(ids, self.state.foot_pos)
         self._depth_stale[:] = False
         self._render_depth(np.arange(self.cfg.depth_from, self.n))  # a first capture for every student
@@ -282,7 +282,7 @@ class Tron1Env:
             self._reset_envs(ids)
             self.state.assign(ids, read_state(phys, ids))
             self.lipm.reset(ids, self.state.foot_pos[ids])
-        self.commands.steer(yaw_of(self.state.base_quat))  # heading mode; after resets: their yaw
+        self._steer()  # after the resets: their yaw
         self._depth_clock += self.policy_dt
         scheduled = self._depth_clock >= 1.0 / self.cfg.depth_hz
         if scheduled:
@@ -455,6 +455,11 @@ class Tron1Env:
         """Desired contact (N, 2) in [0, 1] of the left and right foot under the gait clock."""
         g = self.cfg.gait
         return desired_contact(leg_phases(self.commands.gait_phase, g.offset), g.stance, g.width)
+
+    def _steer(self) -> None:
+        """Heading mode: the yaw-rate commands from the robots' yaw (no work otherwise)."""
+        if self.cfg.commands.heading:
+            self.commands.steer(yaw_of(self.state.base_quat))
 
     def _observe(
         self, ids_reset: np.ndarray | None, update_history: bool = True, scan_before: np.ndarray | None = None

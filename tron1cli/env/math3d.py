@@ -27,6 +27,11 @@ def yaw_of(q: np.ndarray) -> np.ndarray:
     return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles ``a`` (rad, any shape) wrapped to (-pi, pi]."""
+    return np.angle(np.exp(1j * np.asarray(a)))
+
+
 def roll_pitch(gravity_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Roll and pitch (N,) in rad (ZYX Euler; pitch positive nose down) from the unit gravity
     direction in the base frame (N, 3)."""
