@@ -390,3 +390,17 @@ def test_climb_at_speed_scores_one_fixed_command(teacher_stage_ckpt):
     assert 0.0 <= row.traverse <= row.success <= 1.0  # a traverse is a success
     assert row.risers >= 0.0 and row.progress is not None  # every env was asked to walk
     assert all(0.0 <= f <= 1.0 - row.success + 1e-9 for f in (row.fell_tilt, row.fell_base, row.fell_thigh))
+
+
+def test_climb_by_term_scores_each_term_alone(teacher_stage_ckpt):
+    tool = _lab_tool("climb_by_term")
+    sets = tool.term_sets()
+    labels = [label for label, _, _ in sets]
+    assert labels[:4] == ["none", "all", "all + pushes", "pushes"]
+    assert "restitution" in labels and not any(label.startswith("camera") for label in labels)
+    skipped = tool.term_sets(("restitution",))
+    assert "restitution" not in [label for label, _, _ in skipped] and "restitution" not in skipped[1][1]
+    rows = tool.climb_by_term(str(teacher_stage_ckpt), 3, envs=2, steps=5)
+    assert [label for label, _ in rows] == labels
+    for _, row in rows:
+        assert 0.0 <= row.traverse <= row.success <= 1.0 and row.risers >= 0.0
