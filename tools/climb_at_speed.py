@@ -15,18 +15,16 @@ from __future__ import annotations
 
 import argparse
 
-from tron1cli.env.terrain import riser_m
-from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, ClimbRow
-from tron1cli.evaluation.protocol import EvalSpec, run_batch
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, ClimbRow, climb_row
+from tron1cli.evaluation.protocol import EvalSpec
 from tron1cli.policy.runtime import load_policy
 
 
 def climb_at_speed(path: str, speed: float, level: int, envs: int = CLIMB_ENVS, steps: int = 500) -> ClimbRow:
     """The probe's row (:class:`tron1cli.evaluation.climb.ClimbRow`) of the teacher of checkpoint
     ``path`` on stairs up at ``level``, every env commanded ``speed`` m/s straight ahead."""
-    policy = load_policy(path, actor="teacher")
-    r = run_batch(policy, EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0))
-    return ClimbRow.of("teacher", level, riser_m(policy.run_cfg.env.terrain_cfg, level), r)
+    spec = EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, speed=speed, seed=0)
+    return climb_row("teacher", load_policy(path, actor="teacher"), spec)
 
 
 def main() -> None:

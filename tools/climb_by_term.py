@@ -17,9 +17,8 @@ import argparse
 from dataclasses import replace
 
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
-from tron1cli.env.terrain import riser_m
-from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, ClimbRow
-from tron1cli.evaluation.protocol import EvalSpec, run_batch
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_TERRAIN, ClimbRow, climb_row
+from tron1cli.evaluation.protocol import EvalSpec
 from tron1cli.policy.runtime import load_policy
 
 
@@ -38,14 +37,13 @@ def climb_by_term(
     of :func:`term_sets` (Table III's default ranges, moderate pushes)."""
     policy = load_policy(path, actor="teacher")
     run_cfg = policy.run_cfg
-    riser = riser_m(run_cfg.env.terrain_cfg, level)
     rows = []
     for label, terms, pushes in term_sets(skip):
         env = replace(run_cfg.env, randomization=RandomizationConfig(terms=terms))
         policy.run_cfg = replace(run_cfg, env=env)
         push = PushConfig.moderate() if pushes else None
         spec = EvalSpec(CLIMB_TERRAIN, level, envs, steps, True, seed=0, pushes=push)
-        rows.append((label, ClimbRow.of("teacher", level, riser, run_batch(policy, spec))))
+        rows.append((label, climb_row("teacher", policy, spec)))
     policy.run_cfg = run_cfg
     return rows
 

@@ -91,9 +91,15 @@ def climb_probe(
     and each level; ``on_batch(actor, level)`` may return a per-step callback (progress)."""
     rows = []
     for actor, policy in policies.items():
-        cfg = policy.run_cfg.env.terrain_cfg
         for level in levels:
             spec = EvalSpec(CLIMB_TERRAIN, level, envs, steps, randomize, seed=seed)
             on_step = on_batch(actor, level) if on_batch is not None else None
-            rows.append(ClimbRow.of(actor, level, riser_m(cfg, level), run_batch(policy, spec, on_step)))
+            rows.append(climb_row(actor, policy, spec, on_step))
     return rows
+
+
+def climb_row(actor: str, policy, spec: EvalSpec, on_step: Callable[[int], None] | None = None) -> ClimbRow:
+    """The probe's row of ``policy`` (acting as ``actor``) for one batch ``spec`` on
+    :data:`CLIMB_TERRAIN` (the probe's own, or one a lab tool varies: a fixed speed, pushes)."""
+    riser = riser_m(policy.run_cfg.env.terrain_cfg, spec.level)
+    return ClimbRow.of(actor, spec.level, riser, run_batch(policy, spec, on_step))
