@@ -6,7 +6,12 @@ import pytest
 from tron1cli.config import EnvConfig, GaitConfig, NoiseConfig
 from tron1cli.env.core import Tron1Env
 from tron1cli.env.math3d import yaw_of
-from tron1cli.env.randomization import PushConfig, RandomizationConfig, damping_ratio_for_restitution
+from tron1cli.env.randomization import (
+    PushConfig,
+    RandomizationConfig,
+    damping_ratio_for_restitution,
+    impact_damping_ratio,
+)
 from tron1cli.env.sensors import render_depth
 from tron1cli.env.terrain import TERRAIN_GROUPS
 
@@ -53,7 +58,7 @@ def test_randomised_quantities_stay_in_range_and_differ_between_envs():
     fric = np.array([m.geom_friction[m.geom("ground").id, 0] for m in ms])
     assert ((fric >= 0.4) & (fric <= 1.2)).all() and fric.std() > 0.1
     zeta = env.randomizer.impact_zeta  # the damping ratio of a foot's impact above 0.5 m/s
-    lo, hi = damping_ratio_for_restitution(np.array([0.75, 0.25]))
+    lo, hi = impact_damping_ratio(np.array([0.75, 0.25]))
     assert ((zeta >= lo - 1e-9) & (zeta <= hi + 1e-9)).all() and zeta.std() > 0.02
     resting = np.array([m.geom_solref[m.geom("foot_L_geom").id] for m in ms])
     assert np.allclose(resting, [0.02, 1.0])  # feet at rest: MuJoCo's critically damped contact

@@ -27,11 +27,11 @@ sampled restitution e with the terrain material's (``ground_restitution``) by th
 higher priority (the terrain's ``multiply`` over the robot's ``average``), and applies the result
 only to contacts that close faster than the bounce threshold (Isaac Lab: 0.5 m/s); slower
 contacts and resting contacts do not bounce. MuJoCo has no restitution: a contact is a damped
-spring whose coefficient of restitution for a damping ratio zeta is
-e = exp(-pi zeta / sqrt(1 - zeta^2)). So every contact keeps MuJoCo's critically damped default
-(e = 0), and for one policy step a foot that is in the air and descending faster than the
-threshold gets the damping ratio of the combined e (:meth:`Randomizer.gate_restitution`); the
-ground's ``solmix`` is made negligible so that the foot's damping ratio is the contact's. The
+spring. So every contact keeps MuJoCo's critically damped default, and a foot that is in the air
+and descending faster than the threshold gets, for its impact (:data:`IMPACT_STEPS` policy steps
+while it stays down), a stiffer, underdamped contact whose measured rebound is the combined e
+(:meth:`Randomizer.gate_restitution`, :func:`impact_damping_ratio`); the ground's ``solmix`` is
+made negligible so that the foot's damping ratio is the contact's. The
 earlier mapping (``restitution_model="damping"``: every contact of the feet and the ground
 underdamped with the sampled e, resting contacts included) stays available.
 """
@@ -60,10 +60,19 @@ ALL_TERMS = (
 )
 
 
+#: natural frequency (rad/s) of a foot's contact during its impact: twice the nominal contact's
+#: (1 / 0.02 s), so that the bounce is over within about 30 ms of touchdown and the foot sinks
+#: half as deep (measured by a foot sphere dropped at 0.7-1.3 m/s: 6-12 mm at e = 0.75)
+IMPACT_OMEGA = 100.0
 #: policy steps a foot's impact keeps its low damping ratio: the step in which the descending foot
-#: is armed and three more (MuJoCo's contact at the nominal 0.02 s time constant takes about 60 ms
-#: to push a foot back out; measured in tests/test_restitution.py: 2 steps halve the rebound)
-IMPACT_STEPS = 4
+#: is armed and the next ones while it stays on the ground
+IMPACT_STEPS = 3
+#: the impact contact's damping ratio (ascending) and the restitution it gives a foot sphere dropped
+#: at 0.7-1.3 m/s at :data:`IMPACT_OMEGA` (mean; tests/test_restitution.py): MuJoCo's discrete
+#: soft contact departs from the spring-damper's exp(-pi zeta / sqrt(1 - zeta^2)) and rebounds
+#: about 0.14 even critically damped, so a wanted e maps to zeta through this measured curve
+IMPACT_ZETA = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6, 0.7, 0.8)
+IMPACT_E = (0.861, 0.734, 0.642, 0.571, 0.503, 0.438, 0.387, 0.35, 0.315, 0.281, 0.225, 0.19, 0.152)
 
 
 def _check_terms(terms: tuple[str, ...]) -> None:
@@ -140,13 +149,20 @@ def damping_ratio_for_restitution(e: np.ndarray) -> np.ndarray:
     return -L / np.sqrt(np.pi**2 + L**2)
 
 
-def impact_solref(nominal: np.ndarray, zeta: np.ndarray) -> np.ndarray:
-    """MuJoCo ``solref`` rows (k, 2) with damping ratios ``zeta`` (k,) and the stiffness of
-    ``nominal`` (time constant, damping ratio 1): MuJoCo's stiffness grows as
-    1 / (timeconst zeta)^2, so the time constant is divided by ``zeta`` to keep the contact as
-    stiff as the nominal one and lower only its damping."""
+def impact_damping_ratio(e: np.ndarray) -> np.ndarray:
+    """Damping ratio of the impact contact whose measured restitution is ``e`` (:data:`IMPACT_E`);
+    1 (no bounce) below MuJoCo's own rebound."""
+    e = np.asarray(e, dtype=np.float64)
+    zeta = np.interp(-e, [-x for x in IMPACT_E], IMPACT_ZETA)
+    return np.where(e < IMPACT_E[-1], 1.0, zeta)
+
+
+def impact_solref(zeta: np.ndarray, omega: float) -> np.ndarray:
+    """MuJoCo ``solref`` rows (k, 2) with damping ratios ``zeta`` (k,) and natural frequency
+    ``omega`` (rad/s): MuJoCo's contact stiffness is 1 / (timeconst zeta)^2, so the time constant
+    is 1 / (omega zeta)."""
     zeta = np.asarray(zeta, dtype=np.float64)
-    return np.stack([float(nominal[0]) / zeta, zeta], axis=-1)
+    return np.stack([1.0 / (omega * zeta), zeta], axis=-1)
 
 
 class Randomizer:
@@ -204,10 +220,7 @@ class Randomizer:
                 zeta = damping_ratio_for_restitution(e)
             else:
                 e_eff = combined_restitution(e, c.ground_restitution, c.restitution_combine)
-                bounce = e_eff > 1e-6
-                self.impact_zeta[ids] = np.where(
-                    bounce, damping_ratio_for_restitution(np.clip(e_eff, 1e-6, 0.999)), 1.0
-                )
+                self.impact_zeta[ids] = impact_damping_ratio(e_eff)
                 self._bouncy[ids] = False
                 self._impact_left[ids] = 0
                 nominal = np.broadcast_to(self.nominal_solref, (k, 2))
@@ -259,7 +272,7 @@ class Randomizer:
         want = self._impact_left > 0
         envs = np.flatnonzero((want != self._bouncy).any(axis=1))
         if envs.size:  # both feet of those envs: the unchanged one is written its own value
-            impact = impact_solref(self.nominal_solref, self.impact_zeta[envs])  # (k, 2)
+            impact = impact_solref(self.impact_zeta[envs], IMPACT_OMEGA)  # (k, 2)
             solref = np.where(want[envs, :, None], impact[:, None, :], self.nominal_solref)  # (k, F, 2)
             self.physics.write_models(envs, "geom_solref", (self.contact_geoms,), solref)
         self._bouncy = want
