@@ -67,10 +67,11 @@ IMPACT_OMEGA = 100.0
 #: policy steps a foot's impact keeps its low damping ratio: the step in which the descending foot
 #: is armed and the next ones while it stays on the ground
 IMPACT_STEPS = 3
-#: the impact contact's damping ratio (ascending) and the restitution it gives a foot sphere dropped
-#: at 0.7-1.3 m/s at :data:`IMPACT_OMEGA` (mean; tests/test_restitution.py): MuJoCo's discrete
-#: soft contact departs from the spring-damper's exp(-pi zeta / sqrt(1 - zeta^2)) and rebounds
-#: about 0.14 even critically damped, so a wanted e maps to zeta through this measured curve
+#: the impact contact's damping ratio (ascending) and the restitution it gives a foot sphere
+#: dropped at 0.7, 1.0 and 1.3 m/s at :data:`IMPACT_OMEGA` (mean; checked in
+#: tests/test_restitution.py): MuJoCo's discrete soft contact departs from the spring-damper's
+#: exp(-pi zeta / sqrt(1 - zeta^2)) and rebounds about 0.14 even critically damped, so a wanted e
+#: maps to zeta through this measured curve
 IMPACT_ZETA = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6, 0.7, 0.8)
 IMPACT_E = (0.861, 0.734, 0.642, 0.571, 0.503, 0.438, 0.387, 0.35, 0.315, 0.281, 0.225, 0.19, 0.152)
 
