@@ -203,3 +203,55 @@ def test_single_group_runs(ratio):
     stats = learner.update(fill(learner, np.random.default_rng(4)))
     assert all(np.isfinite(v) for v in stats.values())
     assert ("heightmap_err_cm" in stats) == (ratio < 1.0)
+
+
+def test_student_warmup_forces_teacher_latents_then_releases():
+    """During ``student_warmup`` updates the student rows act on their own e_t, h_t through the teacher
+    encoders while the GRU advances as without forcing; afterwards they act on their own latents."""
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    forced, free = make(dims), make(dims)
+    forced.cfg = dataclasses.replace(forced.cfg, student_warmup=1)
+    rng = np.random.default_rng(3)
+    obs = fake_obs(dims, rng)
+    forced.act(obs)
+    free.act(obs)
+    nt = forced.n_teacher
+    st = forced.storage
+    with torch.no_grad():
+        ob = forced.model.normalize(forced._tensors(obs, rows=N))
+        le_t, lh_t = forced.model.teacher_latents(ob["privileged"][nt:], ob["heightmap"][nt:])
+    assert torch.allclose(st.latent_e[0, nt:], le_t) and torch.allclose(st.latent_h[0, nt:], lh_t)
+    assert not torch.allclose(free.storage.latent_h[0, nt:], lh_t)  # unforced: the student's own
+    assert torch.equal(forced.hidden, free.hidden)  # the GRU advanced the same way
+    for learner in (forced, free):
+        for _ in range(1, T):
+            learner.process_step({g: np.zeros(N) for g in GROUPS}, np.zeros(N, bool), np.zeros(N, bool))
+            learner.act(obs)
+        learner.process_step({g: np.zeros(N) for g in GROUPS}, np.zeros(N, bool), np.zeros(N, bool))
+    assert forced.update(obs)["student_forced"] == 1.0 and free.update(obs)["student_forced"] == 0.0
+    assert not forced.student_forced
+    forced.act(obs)
+    with torch.no_grad():
+        ob = forced.model.normalize(forced._tensors(obs, rows=N))
+        _, lh_t = forced.model.teacher_latents(ob["privileged"][nt:], ob["heightmap"][nt:])
+    assert not torch.allclose(forced.storage.latent_h[0, nt:], lh_t)
+
+
+def test_student_warmup_must_be_a_count():
+    with pytest.raises(ValueError, match="student_warmup"):
+        LearnerConfig(student_warmup=-1)
+
+
+@pytest.mark.parametrize("epochs", [1, 3])
+def test_rec_epochs_steps_the_image_path_per_pass(epochs):
+    """Each pass of the image path takes T / tbptt optimiser steps of the CNN; the reported
+    reconstruction figures are the first pass's, so they do not depend on the number of passes."""
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    learner, one = make(dims), make(dims)
+    learner.cfg = dataclasses.replace(learner.cfg, rec_epochs=epochs)
+    last = fill(learner, np.random.default_rng(5))
+    last_one = fill(one, np.random.default_rng(5))
+    stats, stats_one = learner.update(last), one.update(last_one)
+    cnn_weight = next(learner.model.est_h.cnn.parameters())
+    assert int(learner.opt_rec.state[cnn_weight]["step"]) == epochs * (T // learner.cfg.tbptt)
+    assert stats["heightmap_err_cm"] == pytest.approx(stats_one["heightmap_err_cm"], rel=1e-5)

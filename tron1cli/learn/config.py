@@ -137,8 +137,14 @@ class LearnerConfig:
         rec_all_envs: the MLP estimators (privileged, and the history-only heightmap estimator) also
             regress on the teacher envs' history (it is free data); the image path uses student envs.
         rec_batch_envs: student envs sampled per iteration for the image path's reconstruction loss.
+        rec_epochs: passes of the image path over those envs' T steps per iteration (each pass from
+            the GRU states saved at the rollout's start; T / tbptt optimiser steps a pass).
         tbptt: truncated back-propagation length (policy steps) through the GRU; one optimiser step
             per tbptt chunk.
+        student_warmup: updates during which the student envs act on the teacher latents of their
+            own e_t, h_t (teacher forcing) while their estimators learn as usual: the image path then
+            learns on a walker's states, and no PPO sample carries an untrained student latent. For
+            a student stage warm-started from a teacher stage; 0 (the paper) forces nothing.
 
     Observations
         obs_normalization: running mean / std normalisation of proprio, history, privileged (per
@@ -187,7 +193,9 @@ class LearnerConfig:
     rec_lr: float = 1e-3
     rec_all_envs: bool = True
     rec_batch_envs: int = 128
+    rec_epochs: int = 1
     tbptt: int = 8
+    student_warmup: int = 0
     obs_normalization: bool = True
     normalizer_clip: float = 5.0
     precision: str = "fp32"
@@ -202,13 +210,16 @@ class LearnerConfig:
             "depth_feature",
             "gru_hidden",
             "rec_batch_envs",
+            "rec_epochs",
             "tbptt",
         ):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.entropy_decay_iters, int) or self.entropy_decay_iters < 0:
-            raise ValueError("entropy_decay_iters must be a non-negative integer")
+        for name in ("entropy_decay_iters", "student_warmup"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
         for name in (
             "clip",
             "lr",

@@ -16,9 +16,9 @@ Envs ``[0, n_teacher)`` are teachers, the rest students; all share one policy an
   (sg: stop-gradient; targets in normalised units) with their own Adam optimiser, so L_rec never
   reaches the teacher encoders, the policy or the critics. The MLP parts (privileged estimator; the
   history-only heightmap estimator of a run without depth) take one step per PPO minibatch on the same
-  rows. The image path (CNN + GRU) runs once per iteration over ``rec_batch_envs`` student envs
-  sampled at the start of the rollout, x the T steps, from the GRU states saved at that start, with
-  truncated back-propagation through time: the state is detached and the optimiser steps every
+  rows. The image path (CNN + GRU) runs ``rec_epochs`` passes per iteration over ``rec_batch_envs``
+  student envs sampled at the start of the rollout, x the T steps, from the GRU states saved at that
+  start, with truncated back-propagation through time: the state is detached and the optimiser steps every
   ``tbptt`` steps, and the state is zeroed after a done exactly as at collection.
 
 Call order per iteration: T x (``act(obs)``, env step, ``process_step(...)``), then ``update(next_obs)``.
@@ -133,6 +133,11 @@ class VisionCTSLearner:
         flat_env = torch.arange(cfg.num_steps_per_env * N, device=self.device) % N
         self._is_teacher = flat_env < self.n_teacher
 
+    @property
+    def student_forced(self) -> bool:
+        """Whether the student envs act on teacher latents this iteration (``cfg.student_warmup``)."""
+        return self.iteration < self.cfg.student_warmup
+
     # ------------------------------------------------------------------------------------------
     # observations
     def _tensors(self, obs: Mapping[str, np.ndarray], rows: int | None = None) -> dict[str, torch.Tensor]:
@@ -172,7 +177,7 @@ class VisionCTSLearner:
         R = env_ids.shape[0]
         le = torch.zeros(R, m.latent_e_dim, device=self.device)
         lh = torch.zeros(R, m.latent_h_dim, device=self.device)
-        tm = env_ids < self.n_teacher
+        tm = (env_ids < self.n_teacher) | self.student_forced
         if tm.any():
             h = ob["heightmap"][tm] if "heightmap" in ob else None
             le[tm], lh[tm] = m.teacher_latents(ob["privileged"][tm], h)
@@ -251,9 +256,12 @@ class VisionCTSLearner:
             depth = ob["depth"][nt:] if "depth" in ob else None
             feats = self._image_features(depth) if m.depth_path else None
             le_s, lh_s, hid = m.student_latents(ob["history"][nt:], depth, self.hidden, feats)
+            self.hidden.copy_(hid)
+            if self.student_forced:  # teacher forcing: the GRU advanced above, the policy sees e_t, h_t
+                h = ob["heightmap"][nt:] if "heightmap" in ob else None
+                le_s, lh_s = m.teacher_latents(ob["privileged"][nt:], h)
             le[nt:].copy_(le_s)
             lh[nt:].copy_(lh_s)
-            self.hidden.copy_(hid)
         if st.depth is not None:
             st.depth[t].copy_(raw["depth"][st.rec_env_ids])
         mu = m.action_mean(ob["proprio"], le, lh)
@@ -546,17 +554,19 @@ class VisionCTSLearner:
                     add(k if k == "heightmap_err_cm" else f"rec_{k}", v)
         if self.rec_envs > 0:
             img: dict[str, float] = {}
-            hidden = st.hidden0.clone()
-            for s in range(0, cfg.num_steps_per_env, cfg.tbptt):
-                length = min(cfg.tbptt, cfg.num_steps_per_env - s)
-                with self._precision():
-                    loss, parts, hidden = self.image_reconstruction_loss(s, length, hidden.detach())
-                self.opt_rec.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(rec_params, cfg.max_grad_norm)
-                self.opt_rec.step()
-                for k, v in parts.items():
-                    img[k] = img.get(k, 0.0) + float(v.detach()) * length
+            for epoch in range(cfg.rec_epochs):
+                hidden = st.hidden0.clone()
+                for s in range(0, cfg.num_steps_per_env, cfg.tbptt):
+                    length = min(cfg.tbptt, cfg.num_steps_per_env - s)
+                    with self._precision():
+                        loss, parts, hidden = self.image_reconstruction_loss(s, length, hidden.detach())
+                    self.opt_rec.zero_grad(set_to_none=True)
+                    loss.backward()
+                    torch.nn.utils.clip_grad_norm_(rec_params, cfg.max_grad_norm)
+                    self.opt_rec.step()
+                    for k, v in parts.items():
+                        if epoch == 0:  # the first pass meets these frames before training on them
+                            img[k] = img.get(k, 0.0) + float(v.detach()) * length
             for k, v in img.items():  # image-path figures replace per-minibatch ones
                 key = k if k == "heightmap_err_cm" else f"rec_{k}"
                 acc[key], counts[key] = v / cfg.num_steps_per_env, 1
@@ -564,6 +574,7 @@ class VisionCTSLearner:
         stats["lr"] = self.lr
         stats["entropy_coef"] = ent_c
         stats["action_std"] = float(torch.exp(m.log_std.detach()).mean())
+        stats["student_forced"] = float(self.n_student > 0 and self.student_forced)
         self.iteration += 1
         self.step = 0
         self._drop_image_cache()
