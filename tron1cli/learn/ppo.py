@@ -507,7 +507,8 @@ class VisionCTSLearner:
         its values bootstrap the returns of envs still running. Keys of the returned dict:
         ``value_loss/<group>``, ``surrogate_loss``, ``entropy``, ``kl``, ``lr``, ``action_std``,
         ``entropy_coef``, ``rec_latent_e``, ``rec_privileged``, and with a height scan ``rec_latent_h``,
-        ``rec_heightmap``, ``heightmap_err_cm`` (RMS of h_hat - h in cm), ``iteration`` (completed
+        ``rec_heightmap``, ``heightmap_err_cm`` (RMS of h_hat - h in cm; the image path's first pass),
+        ``student_forced`` (1 while ``student_warmup`` holds), ``iteration`` (completed
         updates) and ``learn_s`` (wall time of this call).
         """
         t0 = time.perf_counter()
