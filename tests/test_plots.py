@@ -41,11 +41,14 @@ def test_plots_write_pngs(tmp_path):
         push_survival({"a": {"none": 1.0, "+Fx": 0.5}}, tmp_path / "p.png"),
         campaign_curves(run, tmp_path / "campaign.png", smooth=2),
         campaign_curves([run, run], tmp_path / "phases.png", smooth=2),
+        campaign_curves([run, run], tmp_path / "phases_steps.png", smooth=2, x="env_steps"),
     ]
     for p in pngs:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ValueError, match="x must be"):
         training_curves({"a": run}, tmp_path / "bad.png", x="iterations")
+    with pytest.raises(ValueError, match="x must be"):
+        campaign_curves(run, tmp_path / "bad.png", x="iterations")
 
 
 def test_campaign_phases_are_one_cumulative_series(tmp_path):

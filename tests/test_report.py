@@ -49,7 +49,8 @@ def test_markdown_is_the_cards_table(campaign):
 
 def test_tables_figures_and_curves(campaign, tmp_path):
     png = tmp_path / "out" / "curves.png"
-    r = tron1("report", *map(str, campaign), "--every-min", "2", "--smooth", "2", "--png", str(png))
+    args = ["--every-min", "2", "--smooth", "2", "--png", str(png), "--x", "env_steps"]
+    r = tron1("report", *map(str, campaign), *args)
     assert r.returncode == 0, r.stderr
     assert "training" in r.stdout and "terrain level per type" in r.stdout
     assert "2 run directories, 5 iterations, 0.5 M env steps, 5 wall-clock minutes" in r.stdout
@@ -78,6 +79,7 @@ def test_a_cut_off_last_line_is_left_out_and_a_corrupt_one_refused(tmp_path):
         (lambda d: [str(_run(d / "x", 0))], 1, "holds no iteration yet"),
         (lambda d: [str(_run(d / "x", 2)), "--png", str(d / "c.txt")], 2, "must end in .png"),
         (lambda d: [str(_run(d / "x", 2)), "--every-min", "0"], 2, "--every-min"),
+        (lambda d: [str(_run(d / "x", 2)), "--x", "hours"], 2, "--x hours: must be one of minutes"),
     ],
 )
 def test_bad_input_is_one_line(tmp_path, make, code, text):

@@ -32,6 +32,12 @@ def report(
         metavar="FILE.png",
         help="Also write the curves (survival, tracking, level per type, heightmap error).",
     ),
+    x: str = typer.Option(
+        "minutes",
+        "--x",
+        metavar="minutes|env_steps",
+        help="The x axis of --png: wall-clock minutes or env steps.",
+    ),
 ) -> None:
     """Where training stands, read from the run directories alone (no checkpoint is loaded): one
     line every --every-min wall-clock minutes and the last iteration, with survival, tracking
@@ -40,7 +46,10 @@ def report(
     minutes and env steps add up.
     """
     from tron1cli.viz.campaign import REPORT_COLUMNS, campaign_cells, campaign_phases, campaign_table
+    from tron1cli.viz.plots import X_AXES
 
+    if x not in X_AXES:
+        fail(f"--x {x}: must be one of {', '.join(X_AXES)}", 2)
     if png is not None and png.suffix.lower() != ".png":
         fail(f"--png {png}: the file must end in .png, e.g. --png curves.png", 2)
     check_outputs(files=[("--png", png)], inputs=[Path(d) / METRICS for d in run_dirs])
@@ -71,5 +80,5 @@ def report(
     if png is not None:
         from tron1cli.viz.plots import campaign_curves
 
-        campaign_curves(list(run_dirs), png, smooth)
+        campaign_curves(list(run_dirs), png, smooth, x)
         err.print(f"curves written to {png}", highlight=False, soft_wrap=True)

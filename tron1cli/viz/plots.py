@@ -1,4 +1,4 @@
-"""PNG plots: training curves against wall-clock minutes."""
+"""PNG plots: training curves against wall-clock minutes or env steps."""
 
 from __future__ import annotations
 
@@ -31,10 +31,18 @@ def first_reached(
 
 
 #: x axis name -> (label, metrics key, divisor)
-_X_AXES = {
+X_AXES = {
     "minutes": ("wall-clock minutes", "wall_s", 60.0),
     "env_steps": ("env steps (millions)", "env_steps", 1e6),
 }
+
+
+def x_axis(x: str) -> tuple[str, str, float]:
+    """(label, metrics key, divisor) of x axis ``x``; ValueError names the valid ones."""
+    try:
+        return X_AXES[x]
+    except KeyError:
+        raise ValueError(f"x must be one of {', '.join(X_AXES)}, got {x!r}") from None
 
 
 def training_curves(
@@ -47,10 +55,7 @@ def training_curves(
     """Survival and velocity tracking error of ``group`` against wall-clock minutes (``x="minutes"``)
     or millions of env steps (``x="env_steps"``: runs on machines of other speeds compare), one line
     per run (``mark``: a vertical line at that x, e.g. at a time budget)."""
-    try:
-        xlabel, key, scale = _X_AXES[x]
-    except KeyError:
-        raise ValueError(f"x must be one of {', '.join(_X_AXES)}, got {x!r}") from None
+    xlabel, key, scale = x_axis(x)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     for label, run_dir in runs.items():
         rows = read_metrics(run_dir)
@@ -69,14 +74,16 @@ def training_curves(
     return _save(fig, out_png)
 
 
-def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20) -> Path:
-    """A perceptive campaign against wall-clock minutes (resumed runs included; a list of run
-    directories is its phases in order, each start marked by a dotted line): survival and velocity
-    tracking error of both groups, terrain level per type, and the student's heightmap
-    reconstruction error; each curve a running mean over ``smooth`` iterations within a phase."""
+def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20, x: str = "minutes") -> Path:
+    """A perceptive campaign against wall-clock minutes or millions of env steps (``x``, as in
+    :func:`training_curves`; resumed runs included; a list of run directories is its phases in
+    order, each start marked by a dotted line): survival and velocity tracking error of both
+    groups, terrain level per type, and the student's heightmap reconstruction error; each curve a
+    running mean over ``smooth`` iterations within a phase."""
+    xlabel, key, scale = x_axis(x)
     dirs = [Path(run_dirs)] if isinstance(run_dirs, (str, Path)) else [Path(d) for d in run_dirs]
     rows = campaign_phases(dirs)
-    t = [m["wall_s"] / 60.0 for m in rows]
+    t = [m[key] / scale for m in rows]
 
     def series(key: str) -> list[float]:
         out, window, phase = [], [], None
@@ -100,11 +107,11 @@ def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20
     a_e.set(ylabel="velocity tracking error (m/s)", ylim=(0, None))
     a_l.set(ylabel="terrain level (0 .. 9 hardest)", ylim=(0, 9.2))
     a_r.set(ylabel="student heightmap error (cm, RMS)", ylim=(0, None))
-    starts = [m["wall_s"] / 60.0 for a, m in zip(rows, rows[1:], strict=False) if m["phase"] != a["phase"]]
+    starts = [m[key] / scale for a, m in zip(rows, rows[1:], strict=False) if m["phase"] != a["phase"]]
     for ax in axes.flat:
-        for x in starts:
-            ax.axvline(x, color="k", ls=":", lw=0.8)
-        ax.set_xlabel("wall-clock minutes")
+        for start in starts:
+            ax.axvline(start, color="k", ls=":", lw=0.8)
+        ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     for ax in (a_s, a_e, a_l):
         ax.legend(fontsize=8)
