@@ -80,10 +80,10 @@ def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20
     order, each start marked by a dotted line): survival and velocity tracking error of both
     groups, terrain level per type, and the student's heightmap reconstruction error; each curve a
     running mean over ``smooth`` iterations within a phase."""
-    xlabel, key, scale = x_axis(x)
+    xlabel, x_key, scale = x_axis(x)
     dirs = [Path(run_dirs)] if isinstance(run_dirs, (str, Path)) else [Path(d) for d in run_dirs]
     rows = campaign_phases(dirs)
-    t = [m[key] / scale for m in rows]
+    t = [m[x_key] / scale for m in rows]
 
     def series(key: str) -> list[float]:
         out, window, phase = [], [], None
@@ -107,7 +107,7 @@ def campaign_curves(run_dirs: Path | list[Path], out_png: Path, smooth: int = 20
     a_e.set(ylabel="velocity tracking error (m/s)", ylim=(0, None))
     a_l.set(ylabel="terrain level (0 .. 9 hardest)", ylim=(0, 9.2))
     a_r.set(ylabel="student heightmap error (cm, RMS)", ylim=(0, None))
-    starts = [m[key] / scale for a, m in zip(rows, rows[1:], strict=False) if m["phase"] != a["phase"]]
+    starts = [m[x_key] / scale for a, m in zip(rows, rows[1:], strict=False) if m["phase"] != a["phase"]]
     for ax in axes.flat:
         for start in starts:
             ax.axvline(start, color="k", ls=":", lw=0.8)
