@@ -45,8 +45,13 @@ def report(
     campaign's phases (runs started with --init from the one before) make one series; their
     minutes and env steps add up.
     """
-    from tron1cli.viz.campaign import REPORT_COLUMNS, campaign_cells, campaign_phases, campaign_table
-    from tron1cli.viz.plots import X_AXES
+    from tron1cli.viz.campaign import (
+        REPORT_COLUMNS,
+        X_AXES,
+        campaign_cells,
+        campaign_phases,
+        campaign_table,
+    )
 
     if x not in X_AXES:
         fail(f"--x {x}: must be one of {', '.join(X_AXES)}", 2)

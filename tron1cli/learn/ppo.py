@@ -565,8 +565,8 @@ class VisionCTSLearner:
                     loss.backward()
                     torch.nn.utils.clip_grad_norm_(rec_params, cfg.max_grad_norm)
                     self.opt_rec.step()
-                    for k, v in parts.items():
-                        if epoch == 0:  # the first pass meets these frames before training on them
+                    if epoch == 0:  # the first pass meets these frames before training on them
+                        for k, v in parts.items():
                             img[k] = img.get(k, 0.0) + float(v.detach()) * length
             for k, v in img.items():  # image-path figures replace per-minibatch ones
                 key = k if k == "heightmap_err_cm" else f"rec_{k}"

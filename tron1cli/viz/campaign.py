@@ -12,6 +12,12 @@ from pathlib import Path
 
 from tron1cli.train.layout import METRICS
 
+#: the curves' x axes (``tron1 report --x``): name -> (label, metrics key, divisor)
+X_AXES = {
+    "minutes": ("wall-clock minutes", "wall_s", 60.0),
+    "env_steps": ("env steps (millions)", "env_steps", 1e6),
+}
+
 #: the card's columns: header -> (metrics keys, decimals)
 TABLE_COLUMNS: dict[str, tuple[tuple[str, ...], int]] = {
     "teacher survival": (("teacher/survival",), 2),

@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from tron1cli.viz.campaign import campaign_phases, read_metrics  # noqa: E402
+from tron1cli.viz.campaign import X_AXES, campaign_phases, read_metrics  # noqa: E402
 
 
 def first_reached(
@@ -28,13 +28,6 @@ def first_reached(
         if ok_s and ok_e and out["both_min"] is None:
             out["both_min"] = t
     return out
-
-
-#: x axis name -> (label, metrics key, divisor)
-X_AXES = {
-    "minutes": ("wall-clock minutes", "wall_s", 60.0),
-    "env_steps": ("env steps (millions)", "env_steps", 1e6),
-}
 
 
 def x_axis(x: str) -> tuple[str, str, float]:
