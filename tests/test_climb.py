@@ -367,11 +367,13 @@ def test_gait_by_speed_reports_a_walking_teacher(teacher_stage_ckpt):
 
 def _lab_tool(name: str):
     import importlib.util
+    import sys
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
+    spec = importlib.util.spec_from_file_location(f"tools_{name}", path)
     tool = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = tool  # a dataclass in the tool looks its module up there
     spec.loader.exec_module(tool)
     return tool
 
@@ -404,3 +406,30 @@ def test_climb_by_term_scores_each_term_alone(teacher_stage_ckpt):
     assert [label for label, _ in rows] == labels
     for _, row in rows:
         assert 0.0 <= row.traverse <= row.success <= 1.0 and row.risers >= 0.0
+
+
+def test_latent_swap_variants_are_the_student_and_the_teacher_at_the_ends(tiny_ckpt_vision):
+    from tron1cli.evaluation.protocol import EvalSpec, make_env
+    from tron1cli.policy.runtime import load_policy
+
+    tool = _lab_tool("latent_swap")
+    student, teacher = load_policy(tiny_ckpt_vision), load_policy(tiny_ckpt_vision, "teacher")
+    env = make_env(student, EvalSpec("stairs_up", 6, num_envs=3, steps=10))
+    try:
+        obs = env.reset()
+        for _ in range(3):  # a few steps: the GRU state and the history are no longer zeros
+            action, hidden, _ = student.act(obs, student.initial_hidden(3) if _ == 0 else hidden)
+            obs = env.step(action).obs
+    finally:
+        env.close()
+    acts = {
+        name: tool.swapped(str(tiny_ckpt_vision), e, h).act(obs, hidden)
+        for name, (e, h) in tool.VARIANTS.items()
+    }
+    own, own_hidden, _ = student.act(obs, hidden)
+    np.testing.assert_allclose(acts["student"][0], own, atol=1e-5)
+    np.testing.assert_allclose(acts["student"][1], own_hidden, atol=1e-5)
+    np.testing.assert_allclose(acts["teacher"][0], teacher.act(obs, hidden)[0], atol=1e-5)
+    for name in ("student+true_h", "student+true_e"):  # a swapped latent changes the action
+        assert not np.allclose(acts[name][0], own, atol=1e-6)
+        np.testing.assert_allclose(acts[name][1], own_hidden, atol=1e-5)  # the GRU advances alike

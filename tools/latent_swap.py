@@ -1,0 +1,110 @@
+"""Which of the student's estimates keeps it from climbing? The climb probe with latents swapped.
+
+A lab tool, not a ``tron1`` command. One checkpoint's shared policy walks the climb probe
+(:mod:`tron1cli.evaluation.climb`: stairs up, full window, training commands and randomisation)
+four times, acting on
+
+- ``student``: its own estimates, l^{s,e} (proprioceptive history) and l^{s,h} (depth + GRU);
+- ``student+true_h``: l^{s,e} and the teacher's heightmap latent l^{t,h} (the true h_t encoded);
+- ``student+true_e``: the teacher's privileged latent l^{t,e} and l^{s,h};
+- ``teacher``: both teacher latents (the probe's teacher row).
+
+Every variant reads o_t from the student's history and keeps the student's camera on, so the rows
+differ only in the latents. A student that climbs once given l^{t,h} is held back by its image
+path; one that climbs once given l^{t,e} by its privileged estimate:
+
+    python tools/latent_swap.py policies/runs/cts_phase1/checkpoints/latest.pt --levels 6 9
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, climb_row
+from tron1cli.evaluation.protocol import EvalSpec
+from tron1cli.policy.runtime import Policy, load_policy
+
+#: variant -> (act on the teacher's l^e, act on the teacher's l^h)
+VARIANTS = {
+    "student": (False, False),
+    "student+true_h": (False, True),
+    "student+true_e": (True, False),
+    "teacher": (True, True),
+}
+
+
+@dataclass
+class SwappedPolicy(Policy):
+    """A checkpoint's student whose action reads the teacher's latent in place of its own where
+    ``true_e`` / ``true_h`` say so (the GRU still advances on every frame)."""
+
+    model: torch.nn.Module | None = None
+    true_e: bool = False
+    true_h: bool = False
+
+    @property
+    def actor(self) -> str:
+        return "student"  # the env keeps the camera on
+
+    def act(
+        self, obs: dict[str, np.ndarray], hidden: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        m = self.model
+        keys = ("proprio", "history", "privileged", "heightmap")
+        with torch.no_grad():
+            ob = m.normalize({k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32)) for k in keys})
+            o_n = m.norm_proprio(
+                torch.from_numpy(np.asarray(obs["history"], dtype=np.float32))[:, -m.dims.proprio :]
+            )
+            depth = torch.from_numpy(self.depth_input(obs, len(hidden)))
+            le_s, lh_s, hidden_next = m.student_latents(ob["history"], depth, torch.from_numpy(hidden))
+            le_t, lh_t = m.teacher_latents(ob["privileged"], ob["heightmap"])
+            le = le_t if self.true_e else le_s
+            lh = lh_t if self.true_h else lh_s
+            action = m.action_mean(o_n, le, lh).numpy()
+        return action, hidden_next.numpy(), np.zeros((len(action), 0), dtype=np.float32)
+
+
+def swapped(path: str, true_e: bool, true_h: bool) -> SwappedPolicy:
+    """The student of checkpoint ``path`` with the latents ``true_e`` / ``true_h`` swapped in."""
+    student = load_policy(path, actor="student")
+    model = load_policy(path, actor="teacher")._teacher  # the whole VisionCTS, eval mode
+    return SwappedPolicy(
+        student.path,
+        student.kind,
+        student.contract,
+        student.run_cfg,
+        model=model,
+        true_e=true_e,
+        true_h=true_h,
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoint")
+    ap.add_argument("--levels", type=int, nargs="+", default=list(CLIMB_LEVELS))
+    ap.add_argument("--envs", type=int, default=CLIMB_ENVS)
+    ap.add_argument("--steps", type=int, default=500)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    print("variant | level | riser cm | success % | traverse % | progress | risers")
+    for name, (true_e, true_h) in VARIANTS.items():
+        policy = swapped(args.checkpoint, true_e, true_h)
+        for level in args.levels:
+            spec = EvalSpec(CLIMB_TERRAIN, level, args.envs, args.steps, True, seed=args.seed)
+            r = climb_row(name, policy, spec)
+            progress = "-" if r.progress is None else f"{r.progress:.2f}"
+            print(
+                f"{name} | {level} | {100 * r.riser_m:.0f} | {100 * r.success:.1f} | "
+                f"{100 * r.traverse:.1f} | {progress} | {r.risers:.2f}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
