@@ -416,9 +416,9 @@ def test_latent_swap_variants_are_the_student_and_the_teacher_at_the_ends(tiny_c
     student, teacher = load_policy(tiny_ckpt_vision), load_policy(tiny_ckpt_vision, "teacher")
     env = make_env(student, EvalSpec("stairs_up", 6, num_envs=3, steps=10))
     try:
-        obs = env.reset()
+        obs, hidden = env.reset(), student.initial_hidden(3)
         for _ in range(3):  # a few steps: the GRU state and the history are no longer zeros
-            action, hidden, _ = student.act(obs, student.initial_hidden(3) if _ == 0 else hidden)
+            action, hidden, _ = student.act(obs, hidden)
             obs = env.step(action).obs
     finally:
         env.close()
@@ -433,3 +433,7 @@ def test_latent_swap_variants_are_the_student_and_the_teacher_at_the_ends(tiny_c
     for name in ("student+true_h", "student+true_e"):  # a swapped latent changes the action
         assert not np.allclose(acts[name][0], own, atol=1e-6)
         np.testing.assert_allclose(acts[name][1], own_hidden, atol=1e-5)  # the GRU advances alike
+    policy = tool.swapped(str(tiny_ckpt_vision), False, True)
+    success, traverse, progress, risers = tool.swap_row(policy, EvalSpec("discrete", 2, num_envs=2, steps=10))
+    assert 0.0 <= traverse <= success <= 1.0 and progress is not None
+    assert risers is None  # risers are counted on stairs up only

@@ -11,9 +11,11 @@ four times, acting on
 
 Every variant reads o_t from the student's history and keeps the student's camera on, so the rows
 differ only in the latents. A student that climbs once given l^{t,h} is held back by its image
-path; one that climbs once given l^{t,e} by its privileged estimate:
+path; one that climbs once given l^{t,e} by its privileged estimate. ``--terrain`` asks the same
+of another terrain type (risers are counted on stairs up only):
 
     python tools/latent_swap.py policies/runs/cts_phase1/checkpoints/latest.pt --levels 6 9
+    python tools/latent_swap.py policies/runs/cts_phase1/checkpoints/latest.pt --terrain discrete --levels 9
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, climb_row
-from tron1cli.evaluation.protocol import EvalSpec
+from tron1cli.env.terrain import riser_m
+from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, risers_climbed
+from tron1cli.evaluation.protocol import EvalSpec, run_batch
 from tron1cli.policy.runtime import Policy, load_policy
 
 #: variant -> (act on the teacher's l^e, act on the teacher's l^h)
@@ -54,7 +57,7 @@ class SwappedPolicy(Policy):
         self, obs: dict[str, np.ndarray], hidden: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         m = self.model
-        keys = ("proprio", "history", "privileged", "heightmap")
+        keys = ("proprio", "history", "privileged", "heightmap")  # normalize() takes every group
         with torch.no_grad():
             ob = m.normalize({k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32)) for k in keys})
             o_n = m.norm_proprio(
@@ -84,26 +87,34 @@ def swapped(path: str, true_e: bool, true_h: bool) -> SwappedPolicy:
     )
 
 
+def swap_row(policy: SwappedPolicy, spec: EvalSpec) -> tuple[float, float, float | None, float | None]:
+    """(success, traverse, command progress, risers per env or None off stairs up) of one batch."""
+    r = run_batch(policy, spec)
+    m = r.metrics
+    risers = None
+    if spec.terrain == CLIMB_TERRAIN:
+        risers = risers_climbed(r.rise_m, riser_m(policy.run_cfg.env.terrain_cfg, spec.level))
+    return float(m["success_rate"]), float(m["traverse_rate"]), m["command_progress"], risers
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
+    ap.add_argument("--terrain", default=CLIMB_TERRAIN, help="one terrain type (default: stairs_up)")
     ap.add_argument("--levels", type=int, nargs="+", default=list(CLIMB_LEVELS))
     ap.add_argument("--envs", type=int, default=CLIMB_ENVS)
     ap.add_argument("--steps", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    print("variant | level | riser cm | success % | traverse % | progress | risers")
+    print(f"{args.terrain}: variant | level | success % | traverse % | progress | risers")
     for name, (true_e, true_h) in VARIANTS.items():
         policy = swapped(args.checkpoint, true_e, true_h)
         for level in args.levels:
-            spec = EvalSpec(CLIMB_TERRAIN, level, args.envs, args.steps, True, seed=args.seed)
-            r = climb_row(name, policy, spec)
-            progress = "-" if r.progress is None else f"{r.progress:.2f}"
-            print(
-                f"{name} | {level} | {100 * r.riser_m:.0f} | {100 * r.success:.1f} | "
-                f"{100 * r.traverse:.1f} | {progress} | {r.risers:.2f}",
-                flush=True,
-            )
+            spec = EvalSpec(args.terrain, level, args.envs, args.steps, True, seed=args.seed)
+            success, traverse, progress, risers = swap_row(policy, spec)
+            text = [f"{100 * success:.1f}", f"{100 * traverse:.1f}"]
+            text += ["-" if v is None else f"{v:.2f}" for v in (progress, risers)]
+            print(f"{name} | {level} | " + " | ".join(text), flush=True)
 
 
 if __name__ == "__main__":
