@@ -21,7 +21,7 @@ of another terrain type (risers are counted on stairs up only):
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -57,22 +57,23 @@ class SwappedPolicy(Policy):
         self, obs: dict[str, np.ndarray], hidden: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         m = self.model
-        keys = ("proprio", "history", "privileged", "heightmap")  # normalize() takes every group
+        raw = {
+            k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32))
+            for k in ("history", "privileged", "heightmap")
+        }
+        raw["proprio"] = raw["history"][:, -m.dims.proprio :]  # o_t as the student reads it
         with torch.no_grad():
-            ob = m.normalize({k: torch.from_numpy(np.asarray(obs[k], dtype=np.float32)) for k in keys})
-            o_n = m.norm_proprio(
-                torch.from_numpy(np.asarray(obs["history"], dtype=np.float32))[:, -m.dims.proprio :]
-            )
+            ob = m.normalize(raw)
             depth = torch.from_numpy(self.depth_input(obs, len(hidden)))
             le_s, lh_s, hidden_next = m.student_latents(ob["history"], depth, torch.from_numpy(hidden))
             le_t, lh_t = m.teacher_latents(ob["privileged"], ob["heightmap"])
             le = le_t if self.true_e else le_s
             lh = lh_t if self.true_h else lh_s
-            action = m.action_mean(o_n, le, lh).numpy()
+            action = m.action_mean(ob["proprio"], le, lh).numpy()
         return action, hidden_next.numpy(), np.zeros((len(action), 0), dtype=np.float32)
 
 
-def swapped(path: str, true_e: bool, true_h: bool) -> SwappedPolicy:
+def swapped(path: str, true_e: bool = False, true_h: bool = False) -> SwappedPolicy:
     """The student of checkpoint ``path`` with the latents ``true_e`` / ``true_h`` swapped in."""
     student = load_policy(path, actor="student")
     model = load_policy(path, actor="teacher")._teacher  # the whole VisionCTS, eval mode
@@ -107,8 +108,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     print(f"{args.terrain}: variant | level | success % | traverse % | progress | risers")
+    own = swapped(args.checkpoint)  # the checkpoint read once; the variants differ in two flags
     for name, (true_e, true_h) in VARIANTS.items():
-        policy = swapped(args.checkpoint, true_e, true_h)
+        policy = replace(own, true_e=true_e, true_h=true_h)
         for level in args.levels:
             spec = EvalSpec(args.terrain, level, args.envs, args.steps, True, seed=args.seed)
             success, traverse, progress, risers = swap_row(policy, spec)
