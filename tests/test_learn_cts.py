@@ -19,7 +19,7 @@ N, T = 8, 4
 GROUPS = ("stable", "loco")
 
 
-def make(dims: ObsDims, seed: int = 0) -> VisionCTSLearner:
+def make(dims: ObsDims, seed: int = 0, **overrides) -> VisionCTSLearner:
     cfg = LearnerConfig(
         num_steps_per_env=T,
         num_epochs=2,
@@ -35,6 +35,7 @@ def make(dims: ObsDims, seed: int = 0) -> VisionCTSLearner:
         gru_hidden=8,
         latent_e=4,
         latent_h=6,
+        **overrides,
     )
     return VisionCTSLearner(dims, N, GROUPS, cfg, seed=seed)
 
@@ -142,14 +143,15 @@ def test_vision_update_and_shapes(vision):
     assert np.isfinite(h_hat).all() and np.isfinite(e_hat).all()
 
 
+@pytest.mark.parametrize("reencode_h", [False, True])
 @pytest.mark.parametrize("variant", ["depth", "heightmap", "blind"])
-def test_export_matches_learner_student_action(variant):
+def test_export_matches_learner_student_action(variant, reencode_h):
     dims = {
         "depth": ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW),
         "heightmap": ObsDims(P, H * P, E, heightmap=HM),
         "blind": ObsDims(P, H * P, E),
     }[variant]
-    learner = make(dims, seed=1)
+    learner = make(dims, seed=1, reencode_h=reencode_h)
     rng = np.random.default_rng(2)
     obs = fake_obs(dims, rng)
     learner.act(obs)  # normalisers now hold these observations
@@ -169,10 +171,11 @@ def test_export_matches_learner_student_action(variant):
     torch.testing.assert_close(pol(hist, depth, torch.zeros(N - nt, 8))[0], mean)
 
 
-def test_export_onnx_parity():
+@pytest.mark.parametrize("reencode_h", [False, True])
+def test_export_onnx_parity(reencode_h):
     ort = pytest.importorskip("onnxruntime")
     dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
-    learner = make(dims)
+    learner = make(dims, reencode_h=reencode_h)
     learner.act(fake_obs(dims, np.random.default_rng(3)))
     pol = learner.policy_for_export()
     args = (torch.randn(2, H * P), torch.rand(2, *HW) * 3.0, torch.randn(2, 8))
@@ -255,3 +258,23 @@ def test_rec_epochs_steps_the_image_path_per_pass(epochs):
     cnn_weight = next(learner.model.est_h.cnn.parameters())
     assert int(learner.opt_rec.state[cnn_weight]["step"]) == epochs * (T // learner.cfg.tbptt)
     assert stats["heightmap_err_cm"] == pytest.approx(stats_one["heightmap_err_cm"], rel=1e-5)
+
+
+def test_reencode_h_reads_the_teacher_encoding_of_the_reconstruction():
+    """With reencode_h the student's heightmap latent is l2(enc^{t,h}(dec_h(l))) of its estimator's
+    latent l, the teacher's latent of the reconstruction; without it, l itself."""
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    plain, reenc = make(dims, seed=4), make(dims, seed=4, reencode_h=True)
+    rng = np.random.default_rng(4)
+    obs = fake_obs(dims, rng)
+    hist = torch.from_numpy(obs["history"])
+    depth = torch.from_numpy(obs["depth"])
+    hidden = torch.zeros(N, 8)
+    with torch.no_grad():
+        _, lh_plain, h_plain = plain.model.student_latents(hist, depth, hidden)
+        _, lh_reenc, h_reenc = reenc.model.student_latents(hist, depth, hidden)
+        _, want = reenc.model.teacher_latents(torch.zeros(N, E), reenc.model.dec_h(lh_plain))
+    torch.testing.assert_close(h_reenc, h_plain)  # same estimator, same GRU state
+    torch.testing.assert_close(lh_reenc, want)
+    assert not torch.allclose(lh_reenc, lh_plain)
+    torch.testing.assert_close(lh_reenc.norm(dim=-1), torch.ones(N))

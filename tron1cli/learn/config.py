@@ -141,6 +141,11 @@ class LearnerConfig:
             the GRU states saved at the rollout's start; T / tbptt optimiser steps a pass).
         tbptt: truncated back-propagation length (policy steps) through the GRU; one optimiser step
             per tbptt chunk.
+        reencode_h: the policy reads, as the student's heightmap latent, the teacher's heightmap
+            encoder applied to the student's reconstruction, enc^{t,h}(h_hat), in place of the
+            estimator's own latent (the paper's; False). The estimator still learns by the same
+            regressions; the re-encoded latent lies where the teacher's latents lie, which the
+            shared policy knows. A departure from the paper, off by default.
         student_warmup: updates during which the student envs act on the teacher latents of their
             own e_t, h_t (teacher forcing) while their estimators learn as usual: the image path then
             learns on a walker's states, and no PPO sample carries an untrained student latent. For
@@ -195,6 +200,7 @@ class LearnerConfig:
     rec_batch_envs: int = 128
     rec_epochs: int = 1
     tbptt: int = 8
+    reencode_h: bool = False
     student_warmup: int = 0
     obs_normalization: bool = True
     normalizer_clip: float = 5.0

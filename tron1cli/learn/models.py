@@ -245,6 +245,7 @@ class VisionCTS(nn.Module):
         Lh = cfg.latent_h if dims.has_heightmap else 0
         self.latent_e_dim, self.latent_h_dim = Le, Lh
         self.gru_hidden = cfg.gru_hidden
+        self.reencode_h = bool(cfg.reencode_h)
         on, clip = cfg.obs_normalization, cfg.normalizer_clip
         self.norm_proprio = RunningNormalizer(P, clip=clip, enabled=on)
         self.norm_history = RunningNormalizer(HP, clip=clip, enabled=on)
@@ -339,8 +340,15 @@ class VisionCTS(nn.Module):
         if isinstance(self.est_h, DepthHeightEstimator):
             assert depth is not None
             lh, h = self.est_h.step(hist_n, depth, hidden, image_features)
-            return le, lh, h
-        return le, l2_normalize(self.est_h(hist_n)), hidden
+            return le, self.policy_h_latent(lh), h
+        return le, self.policy_h_latent(l2_normalize(self.est_h(hist_n))), hidden
+
+    def policy_h_latent(self, lh_s: torch.Tensor) -> torch.Tensor:
+        """The heightmap latent the policy reads for a student: its estimator's ``lh_s``, or with
+        ``reencode_h`` the teacher encoder's latent of the reconstruction dec_h(lh_s)."""
+        if not self.reencode_h:
+            return lh_s
+        return l2_normalize(self.teacher_h(self.dec_h(lh_s)))
 
     # ---- heads ------------------------------------------------------------------------------
     def action_mean(self, o_n: torch.Tensor, le: torch.Tensor, lh: torch.Tensor) -> torch.Tensor:
@@ -382,6 +390,7 @@ class StudentPolicy(nn.Module):
         self.dec_h = model.dec_h
         self.actor = model.actor
         self.depth_path = model.depth_path
+        self.teacher_h = model.teacher_h if model.reencode_h else None
 
     def forward(
         self, history: torch.Tensor, depth: torch.Tensor, hidden: torch.Tensor
@@ -400,7 +409,10 @@ class StudentPolicy(nn.Module):
             else:
                 lh = l2_normalize(self.est_h(hist_n))
                 hidden_next = hidden
-            h_hat = self.norm_heightmap.inverse(self.dec_h(lh))
+            h_hat_n = self.dec_h(lh)
+            h_hat = self.norm_heightmap.inverse(h_hat_n)
+            if self.teacher_h is not None:  # reencode_h: the policy reads enc^{t,h}(h_hat)
+                lh = l2_normalize(self.teacher_h(h_hat_n))
         parts = [o_n, le, lh]
         if not self.depth_path:
             # a zero-width slice of the unused depth input keeps it in an exported graph (the
