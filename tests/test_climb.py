@@ -430,10 +430,10 @@ def test_latent_swap_variants_are_the_student_and_the_teacher_at_the_ends(tiny_c
     np.testing.assert_allclose(acts["student"][0], own, atol=1e-5)
     np.testing.assert_allclose(acts["student"][1], own_hidden, atol=1e-5)
     np.testing.assert_allclose(acts["teacher"][0], teacher.act(obs, hidden)[0], atol=1e-5)
-    for name in ("student+true_h", "student+true_e"):  # a swapped latent changes the action
+    for name in ("student+true_h", "student+true_e", "student+reencoded_h"):  # a swap changes the action
         assert not np.allclose(acts[name][0], own, atol=1e-6)
         np.testing.assert_allclose(acts[name][1], own_hidden, atol=1e-5)  # the GRU advances alike
-    policy = tool.swapped(str(tiny_ckpt_vision), False, True)
+    policy = tool.swapped(str(tiny_ckpt_vision), False, "true")
     success, traverse, progress, risers = tool.swap_row(policy, EvalSpec("discrete", 2, num_envs=2, steps=10))
     assert 0.0 <= traverse <= success <= 1.0 and progress is not None
     assert risers is None  # risers are counted on stairs up only

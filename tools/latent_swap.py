@@ -2,12 +2,14 @@
 
 A lab tool, not a ``tron1`` command. One checkpoint's shared policy walks the climb probe
 (:mod:`tron1cli.evaluation.climb`: stairs up, full window, training commands and randomisation)
-four times, acting on
+five times, acting on
 
 - ``student``: its own estimates, l^{s,e} (proprioceptive history) and l^{s,h} (depth + GRU);
 - ``student+true_h``: l^{s,e} and the teacher's heightmap latent l^{t,h} (the true h_t encoded);
 - ``student+true_e``: the teacher's privileged latent l^{t,e} and l^{s,h};
-- ``teacher``: both teacher latents (the probe's teacher row).
+- ``teacher``: both teacher latents (the probe's teacher row);
+- ``student+reencoded_h``: l^{s,e} and the teacher encoder's latent of the student's own
+  reconstruction, enc^{t,h}(h_hat) (what ``--learner reencode_h=true`` trains with).
 
 Every variant reads o_t from the student's history and keeps the student's camera on, so the rows
 differ only in the latents. A student that climbs once given l^{t,h} is held back by its image
@@ -29,25 +31,29 @@ import torch
 from tron1cli.env.terrain import riser_m
 from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, risers_climbed
 from tron1cli.evaluation.protocol import EvalSpec, run_batch
+from tron1cli.learn.models import l2_normalize
 from tron1cli.policy.runtime import Policy, load_policy
 
-#: variant -> (act on the teacher's l^e, act on the teacher's l^h)
+#: variant -> (act on the teacher's l^e, the heightmap latent: "own" (the checkpoint student's),
+#: "true" (the teacher's) or "reencoded" (enc^{t,h} of the student's reconstruction))
 VARIANTS = {
-    "student": (False, False),
-    "student+true_h": (False, True),
-    "student+true_e": (True, False),
-    "teacher": (True, True),
+    "student": (False, "own"),
+    "student+true_h": (False, "true"),
+    "student+true_e": (True, "own"),
+    "teacher": (True, "true"),
+    "student+reencoded_h": (False, "reencoded"),
 }
 
 
 @dataclass
 class SwappedPolicy(Policy):
-    """A checkpoint's student whose action reads the teacher's latent in place of its own where
-    ``true_e`` / ``true_h`` say so (the GRU still advances on every frame)."""
+    """A checkpoint's student whose action reads the teacher's privileged latent where ``true_e``
+    says so and the heightmap latent ``h_latent`` names (see :data:`VARIANTS`; the GRU still
+    advances on every frame)."""
 
     model: torch.nn.Module | None = None
     true_e: bool = False
-    true_h: bool = False
+    h_latent: str = "own"
 
     @property
     def actor(self) -> str:
@@ -65,16 +71,22 @@ class SwappedPolicy(Policy):
         with torch.no_grad():
             ob = m.normalize(raw)
             depth = torch.from_numpy(self.depth_input(obs, len(hidden)))
-            le_s, lh_s, hidden_next = m.student_latents(ob["history"], depth, torch.from_numpy(hidden))
+            le_s = m.student_latent_e(ob["history"])
+            lh_gru, hidden_next = m.est_h.step(ob["history"], depth, torch.from_numpy(hidden))
             le_t, lh_t = m.teacher_latents(ob["privileged"], ob["heightmap"])
             le = le_t if self.true_e else le_s
-            lh = lh_t if self.true_h else lh_s
+            if self.h_latent == "true":
+                lh = lh_t
+            elif self.h_latent == "reencoded":
+                lh = l2_normalize(m.teacher_h(m.dec_h(lh_gru)))
+            else:
+                lh = m.policy_h_latent(lh_gru)
             action = m.action_mean(ob["proprio"], le, lh).numpy()
         return action, hidden_next.numpy(), np.zeros((len(action), 0), dtype=np.float32)
 
 
-def swapped(path: str, true_e: bool = False, true_h: bool = False) -> SwappedPolicy:
-    """The student of checkpoint ``path`` with the latents ``true_e`` / ``true_h`` swapped in."""
+def swapped(path: str, true_e: bool = False, h_latent: str = "own") -> SwappedPolicy:
+    """The student of checkpoint ``path`` acting on the latents ``true_e`` / ``h_latent`` say."""
     student = load_policy(path, actor="student")
     model = load_policy(path, actor="teacher")._teacher  # the whole VisionCTS, eval mode
     return SwappedPolicy(
@@ -84,7 +96,7 @@ def swapped(path: str, true_e: bool = False, true_h: bool = False) -> SwappedPol
         student.run_cfg,
         model=model,
         true_e=true_e,
-        true_h=true_h,
+        h_latent=h_latent,
     )
 
 
@@ -109,8 +121,8 @@ def main() -> None:
     args = ap.parse_args()
     print(f"{args.terrain}: variant | level | success % | traverse % | progress | risers")
     own = swapped(args.checkpoint)  # the checkpoint read once; the variants differ in two flags
-    for name, (true_e, true_h) in VARIANTS.items():
-        policy = replace(own, true_e=true_e, true_h=true_h)
+    for name, (true_e, h_latent) in VARIANTS.items():
+        policy = replace(own, true_e=true_e, h_latent=h_latent)
         for level in args.levels:
             spec = EvalSpec(args.terrain, level, args.envs, args.steps, True, seed=args.seed)
             success, traverse, progress, risers = swap_row(policy, spec)
