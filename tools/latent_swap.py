@@ -31,7 +31,6 @@ import torch
 from tron1cli.env.terrain import riser_m
 from tron1cli.evaluation.climb import CLIMB_ENVS, CLIMB_LEVELS, CLIMB_TERRAIN, risers_climbed
 from tron1cli.evaluation.protocol import EvalSpec, run_batch
-from tron1cli.learn.models import l2_normalize
 from tron1cli.policy.runtime import Policy, load_policy
 
 #: variant -> (act on the teacher's l^e, the heightmap latent: "own" (the checkpoint student's),
@@ -78,7 +77,7 @@ class SwappedPolicy(Policy):
             if self.h_latent == "true":
                 lh = lh_t
             elif self.h_latent == "reencoded":
-                lh = l2_normalize(m.teacher_h(m.dec_h(lh_gru)))
+                lh = m.reencoded_h(lh_gru)
             else:
                 lh = m.policy_h_latent(lh_gru)
             action = m.action_mean(ob["proprio"], le, lh).numpy()

@@ -345,9 +345,11 @@ class VisionCTS(nn.Module):
 
     def policy_h_latent(self, lh_s: torch.Tensor) -> torch.Tensor:
         """The heightmap latent the policy reads for a student: its estimator's ``lh_s``, or with
-        ``reencode_h`` the teacher encoder's latent of the reconstruction dec_h(lh_s)."""
-        if not self.reencode_h:
-            return lh_s
+        ``reencode_h`` :meth:`reencoded_h` of it."""
+        return self.reencoded_h(lh_s) if self.reencode_h else lh_s
+
+    def reencoded_h(self, lh_s: torch.Tensor) -> torch.Tensor:
+        """The teacher encoder's latent of the student's reconstruction, l2(enc^{t,h}(dec_h(lh_s)))."""
         return l2_normalize(self.teacher_h(self.dec_h(lh_s)))
 
     # ---- heads ------------------------------------------------------------------------------
