@@ -111,7 +111,8 @@ def test_gradient_routes(vision):
     st = learner.storage
     loss, parts, hidden = learner.image_reconstruction_loss(0, 2, st.hidden0.clone())
     loss.backward()
-    assert set(parts) == {"latent_h", "heightmap", "heightmap_err_cm"}
+    assert set(parts) == {"latent_h", "heightmap", "latent_h_reencoded", "heightmap_err_cm"}
+    assert not parts["latent_h_reencoded"].requires_grad  # a figure at rec_reencode_coef = 0
     assert all(grads(m.est_h.cnn)) and all(grads(m.est_h.gru)) and all(grads(m.dec_h))
     assert not any(any(grads(x)) for x in teacher + heads + [m.est_e, m.dec_e])
     assert hidden.shape == (3, 8)
@@ -258,6 +259,28 @@ def test_rec_epochs_steps_the_image_path_per_pass(epochs):
     cnn_weight = next(learner.model.est_h.cnn.parameters())
     assert int(learner.opt_rec.state[cnn_weight]["step"]) == epochs * (T // learner.cfg.tbptt)
     assert stats["heightmap_err_cm"] == pytest.approx(stats_one["heightmap_err_cm"], rel=1e-5)
+
+
+def test_rec_reencode_coef_adds_the_reencoded_latent_regression():
+    """rec_reencode_coef adds coef x MSE(l2(enc^{t,h}(h_hat)), l^{t,h}) to the image path's loss; its
+    gradient reaches the estimator through h_hat and leaves the teacher encoder to PPO."""
+    dims = ObsDims(P, H * P, E, heightmap=HM, depth_hw=HW)
+    plain, weighted = make(dims, seed=5), make(dims, seed=5, rec_reencode_coef=2.0)
+    for learner in (plain, weighted):
+        fill(learner, np.random.default_rng(5))
+    hidden0 = plain.storage.hidden0.clone()
+    loss_p, parts_p, _ = plain.image_reconstruction_loss(0, 2, hidden0.clone())
+    loss_w, parts_w, _ = weighted.image_reconstruction_loss(0, 2, hidden0.clone())
+    torch.testing.assert_close(parts_w["latent_h_reencoded"], parts_p["latent_h_reencoded"])
+    torch.testing.assert_close(loss_w - loss_p, 2.0 * parts_w["latent_h_reencoded"].detach())
+    m = weighted.model
+    loss_w.backward()
+    loss_p.backward()
+    first = next(m.dec_h.parameters()).grad
+    assert not torch.allclose(first, next(plain.model.dec_h.parameters()).grad)
+    assert {id(p) for p in m.teacher_h.parameters()}.isdisjoint(id(p) for p in m.estimator_parameters())
+    with pytest.raises(ValueError, match="rec_reencode_coef"):
+        LearnerConfig(rec_reencode_coef=-1.0)
 
 
 def test_reencode_h_reads_the_teacher_encoding_of_the_reconstruction():

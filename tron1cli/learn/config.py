@@ -146,6 +146,11 @@ class LearnerConfig:
             estimator's own latent (the paper's; False). The estimator still learns by the same
             regressions; the re-encoded latent lies where the teacher's latents lie, which the
             shared policy knows. A departure from the paper, off by default.
+        rec_reencode_coef: weight, in the heightmap estimator's loss, of a third regression:
+            MSE(enc^{t,h}(h_hat), l^{t,h}), the re-encoded latent against the teacher's (the
+            teacher encoder frozen, its gradient reaching the estimator through h_hat). It weights
+            the reconstruction's errors by how much the teacher's encoder minds them; 0 (the
+            paper) leaves the loss as it is. A departure from the paper.
         student_warmup: updates during which the student envs act on the teacher latents of their
             own e_t, h_t (teacher forcing) while their estimators learn as usual: the image path then
             learns on a walker's states, and no PPO sample carries an untrained student latent. For
@@ -201,6 +206,7 @@ class LearnerConfig:
     rec_epochs: int = 1
     tbptt: int = 8
     reencode_h: bool = False
+    rec_reencode_coef: float = 0.0
     student_warmup: int = 0
     obs_normalization: bool = True
     normalizer_clip: float = 5.0
@@ -247,7 +253,7 @@ class LearnerConfig:
             raise ValueError("lr_factor must exceed 1")
         if not self.lr_min <= self.lr <= self.lr_max:
             raise ValueError(f"lr {self.lr} must lie in [lr_min, lr_max] = [{self.lr_min}, {self.lr_max}]")
-        for name in ("entropy_coef", "entropy_coef_final", "value_coef", "rec_coef"):
+        for name in ("entropy_coef", "entropy_coef_final", "value_coef", "rec_coef", "rec_reencode_coef"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be non-negative")
         for name in (

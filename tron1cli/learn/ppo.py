@@ -414,14 +414,29 @@ class VisionCTSLearner:
         le_s = m.student_latent_e(hist)
         parts = {"latent_e": F.mse_loss(le_s, le_t), "privileged": F.mse_loss(m.dec_e(le_s), e)}
         if mlp_h:
-            lh_s = l2_normalize(m.est_h(hist))
-            h_hat = m.dec_h(lh_s)
-            parts["latent_h"] = F.mse_loss(lh_s, lh_t)
-            parts["heightmap"] = F.mse_loss(h_hat, h)
-            with torch.no_grad():
-                parts["heightmap_err_cm"] = self._height_err_cm(h_hat, h)
-        loss = self.cfg.rec_coef * sum(v for k, v in parts.items() if k != "heightmap_err_cm")
-        return loss, parts
+            parts |= self._heightmap_parts(l2_normalize(m.est_h(hist)), lh_t, h)
+        return self._rec_total(parts), parts
+
+    def _heightmap_parts(
+        self, lh_s: torch.Tensor, lh_t: torch.Tensor, h: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """The heightmap estimator's regressions from its latent ``lh_s`` (..., latent_h) against the
+        teacher's ``lh_t`` and the scan ``h`` (..., 441): latent_h, heightmap, latent_h_reencoded
+        (the teacher encoder's latent of h_hat against lh_t; a figure only, unless
+        ``rec_reencode_coef``), and heightmap_err_cm (a figure)."""
+        h_hat = self.model.dec_h(lh_s)
+        parts = {"latent_h": F.mse_loss(lh_s, lh_t), "heightmap": F.mse_loss(h_hat, h)}
+        with torch.set_grad_enabled(torch.is_grad_enabled() and self.cfg.rec_reencode_coef > 0):
+            parts["latent_h_reencoded"] = F.mse_loss(self.model.reencoded_h(lh_s), lh_t)
+        with torch.no_grad():
+            parts["heightmap_err_cm"] = self._height_err_cm(h_hat, h)
+        return parts
+
+    def _rec_total(self, parts: dict[str, torch.Tensor]) -> torch.Tensor:
+        """L_rec: rec_coef x the sum of the regressions in ``parts`` (latent_h_reencoded weighted by
+        ``rec_reencode_coef``; heightmap_err_cm is a figure)."""
+        weights = {"heightmap_err_cm": 0.0, "latent_h_reencoded": self.cfg.rec_reencode_coef}
+        return self.cfg.rec_coef * sum(weights.get(k, 1.0) * v for k, v in parts.items())
 
     def _height_err_cm(self, h_hat_n: torch.Tensor, h_n: torch.Tensor) -> torch.Tensor:
         scale = self.model.norm_heightmap.scale()
@@ -473,13 +488,8 @@ class VisionCTSLearner:
             h = est.gru(feats[k], h)
             hs.append(h)
             h = h * (1.0 - dones[k]).unsqueeze(-1)
-        lh_s = est.latent(torch.stack(hs))
-        h_hat = m.dec_h(lh_s)
-        parts = {"latent_h": F.mse_loss(lh_s, lh_t), "heightmap": F.mse_loss(h_hat, hmap)}
-        with torch.no_grad():
-            parts["heightmap_err_cm"] = self._height_err_cm(h_hat, hmap)
-        loss = self.cfg.rec_coef * (parts["latent_h"] + parts["heightmap"])
-        return loss, parts, h
+        parts = self._heightmap_parts(est.latent(torch.stack(hs)), lh_t, hmap)
+        return self._rec_total(parts), parts, h
 
     # ------------------------------------------------------------------------------------------
     # update
@@ -507,7 +517,8 @@ class VisionCTSLearner:
         its values bootstrap the returns of envs still running. Keys of the returned dict:
         ``value_loss/<group>``, ``surrogate_loss``, ``entropy``, ``kl``, ``lr``, ``action_std``,
         ``entropy_coef``, ``rec_latent_e``, ``rec_privileged``, and with a height scan ``rec_latent_h``,
-        ``rec_heightmap``, ``heightmap_err_cm`` (RMS of h_hat - h in cm; the image path's first pass),
+        ``rec_heightmap``, ``rec_latent_h_reencoded``, ``heightmap_err_cm`` (RMS of h_hat - h in cm; the
+        image path's first pass),
         ``student_forced`` (1 while ``student_warmup`` holds), ``iteration`` (completed
         updates) and ``learn_s`` (wall time of this call).
         """
