@@ -318,7 +318,11 @@ class VisionCTS(nn.Module):
         le = l2_normalize(self.teacher_e(e_n))
         if self.teacher_h is None or h_n is None:
             return le, self._empty(e_n)
-        return le, l2_normalize(self.teacher_h(h_n))
+        return le, self.teacher_h_latent(h_n)
+
+    def teacher_h_latent(self, h_n: torch.Tensor) -> torch.Tensor:
+        """The teacher encoder's heightmap latent of a (normalised) scan ``h_n`` (..., 441)."""
+        return l2_normalize(self.teacher_h(h_n))
 
     def student_latent_e(self, hist_n: torch.Tensor) -> torch.Tensor:
         return l2_normalize(self.est_e(hist_n))
@@ -350,7 +354,7 @@ class VisionCTS(nn.Module):
 
     def reencoded_h(self, lh_s: torch.Tensor) -> torch.Tensor:
         """The teacher encoder's latent of the student's reconstruction, l2(enc^{t,h}(dec_h(lh_s)))."""
-        return l2_normalize(self.teacher_h(self.dec_h(lh_s)))
+        return self.teacher_h_latent(self.dec_h(lh_s))
 
     # ---- heads ------------------------------------------------------------------------------
     def action_mean(self, o_n: torch.Tensor, le: torch.Tensor, lh: torch.Tensor) -> torch.Tensor:

@@ -427,7 +427,7 @@ class VisionCTSLearner:
         h_hat = self.model.dec_h(lh_s)
         parts = {"latent_h": F.mse_loss(lh_s, lh_t), "heightmap": F.mse_loss(h_hat, h)}
         with torch.set_grad_enabled(torch.is_grad_enabled() and self.cfg.rec_reencode_coef > 0):
-            parts["latent_h_reencoded"] = F.mse_loss(self.model.reencoded_h(lh_s), lh_t)
+            parts["latent_h_reencoded"] = F.mse_loss(self.model.teacher_h_latent(h_hat), lh_t)
         with torch.no_grad():
             parts["heightmap_err_cm"] = self._height_err_cm(h_hat, h)
         return parts
@@ -478,7 +478,7 @@ class VisionCTSLearner:
         dones = st.dones[sl, ids]
         L, B = hist.shape[0], hist.shape[1]
         with torch.no_grad():
-            lh_t = l2_normalize(m.teacher_h(hmap))
+            lh_t = m.teacher_h_latent(hmap)
         frames = st.depth[sl]
         feats = est.features(hist.reshape(L * B, -1), None, self._chunk_image_features(frames))
         feats = feats.reshape(L, B, -1)
