@@ -4,7 +4,9 @@ A lab tool, not a ``tron1`` command: it runs ``tron1 eval``'s protocol (training
 randomisation on, full window, seed 0) on discrete obstacles at one level and splits every env's
 walking time by the local relief at each step: the highest minus the lowest ground on a 5 x 5 grid
 of points within +/- ``REACH_M`` of the base (m; blocks stand 2-36 cm on the hardest level), counting
-the falls under each band and what ended them (tilt, base or thigh contact).
+the falls under each band and what ended them (tilt, base or thigh contact). Where the relief
+passes 20 cm it splits the time and falls again by the forward command in force (forward, backward,
+neither), since the knee points backwards and walking back meets a block with it.
 
     python tools/falls_on_discrete.py policies/runs/cts_phase2/checkpoints/latest.pt --actor student
 """
@@ -23,6 +25,10 @@ from tron1cli.policy.runtime import load_policy
 REACH_M = 0.4
 #: (label, lower bound of the relief in m); a step belongs to the first band it reaches
 BANDS = (("relief >= 30 cm", 0.30), ("20-30 cm", 0.20), ("10-20 cm", 0.10), ("< 10 cm", -np.inf))
+#: the relief (m) from which steps are also split by the forward command
+TALL_M = 0.20
+#: (label, lower bound of the forward command in m/s), first band exceeded; used where relief >= TALL_M
+DIRECTIONS = (("vx > 0.2 m/s", 0.2), ("vx -0.2-0.2", -0.2), ("vx < -0.2 m/s", -np.inf))
 
 
 def relief(env) -> np.ndarray:
@@ -35,21 +41,31 @@ def relief(env) -> np.ndarray:
 
 def falls_on_discrete(
     path: str, actor: str, level: int, envs: int, seed: int, steps: int = 500
-) -> tuple[list[tuple], np.ndarray, float, int]:
-    """Rows (band, exposure s, falls, falls per minute), the fall causes summed
-    ((len(FALL_CAUSES),)), the success rate (0-1) and how many envs left the tile."""
+) -> tuple[list[tuple], list[tuple], np.ndarray, float, int]:
+    """Rows (band, exposure s, falls, falls per minute) by relief, the same by forward command
+    where the relief passes ``TALL_M``, the fall causes summed ((len(FALL_CAUSES),)), the success
+    rate (0-1) and how many envs left the tile."""
     policy = load_policy(path, actor=actor)
     exposure, falls = np.zeros(len(BANDS)), np.zeros(len(BANDS))
+    exposure_dir, falls_dir = np.zeros(len(DIRECTIONS)), np.zeros(len(DIRECTIONS))
     causes = np.zeros(len(FALL_CAUSES))
     band = np.zeros(envs, dtype=int)
+    direction = np.zeros(envs, dtype=int)
+    tall = np.zeros(envs, dtype=bool)
 
-    def note_band(env, t) -> None:  # the relief where the step starts
-        band[:] = np.select([relief(env) >= lo for _, lo in BANDS], range(len(BANDS)))
+    def note_band(env, t) -> None:  # the relief and the command where the step starts
+        r = relief(env)
+        band[:] = np.select([r >= lo for _, lo in BANDS], range(len(BANDS)))
+        tall[:] = r >= TALL_M
+        vx = env.commands.value[:, 0]
+        direction[:] = np.select([vx > lo for _, lo in DIRECTIONS], range(len(DIRECTIONS)))
 
     def count(env, res, walking) -> None:
         fell = walking & res.failed
         exposure[:] += np.bincount(band[walking], minlength=len(BANDS)) * env.policy_dt
         falls[:] += np.bincount(band[fell], minlength=len(BANDS))
+        exposure_dir[:] += np.bincount(direction[walking & tall], minlength=len(DIRECTIONS)) * env.policy_dt
+        falls_dir[:] += np.bincount(direction[fell & tall], minlength=len(DIRECTIONS))
         causes[:] += res.fall_causes[fell].sum(axis=0)
 
     result = run_batch(
@@ -58,11 +74,20 @@ def falls_on_discrete(
         before_step=note_band,
         after_step=count,
     )
-    rows = [
-        (label, e, int(f), 60.0 * f / e if e > 0 else float("nan"))
-        for (label, _), e, f in zip(BANDS, exposure, falls, strict=True)
-    ]
-    return rows, causes, float(result.metrics["success_rate"]), int(result.left.sum())
+
+    def rows(bands, exp, fal) -> list[tuple]:
+        return [
+            (label, e, int(f), 60.0 * f / e if e > 0 else float("nan"))
+            for (label, _), e, f in zip(bands, exp, fal, strict=True)
+        ]
+
+    return (
+        rows(BANDS, exposure, falls),
+        rows(DIRECTIONS, exposure_dir, falls_dir),
+        causes,
+        float(result.metrics["success_rate"]),
+        int(result.left.sum()),
+    )
 
 
 def main() -> None:
@@ -74,7 +99,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=500)
     args = ap.parse_args()
-    rows, causes, success, left = falls_on_discrete(
+    rows, by_command, causes, success, left = falls_on_discrete(
         args.checkpoint, args.actor, args.level, args.envs, args.seed, args.steps
     )
     print(
@@ -83,6 +108,9 @@ def main() -> None:
     )
     print("band, exposure (s), falls, falls per minute")
     for label, e, f, rate in rows:
+        print(f"{label:16s} {e:7.0f} {f:5d} {rate:7.2f}")
+    print(f"where the relief passes {100 * TALL_M:.0f} cm, by the forward command:")
+    for label, e, f, rate in by_command:
         print(f"{label:16s} {e:7.0f} {f:5d} {rate:7.2f}")
     print("causes: " + ", ".join(f"{n} {int(c)}" for n, c in zip(FALL_CAUSES, causes, strict=True)))
 
