@@ -235,3 +235,8 @@ def test_track_progress_pays_only_speed_along_the_command_clipped_at_it() -> Non
     )
     np.testing.assert_allclose(rt.track_progress(cmd, v), [0.5, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.96, 0.0])
     np.testing.assert_allclose(rt.track_progress(cmd[-1:], v[-1:], min_cmd=0.01), [1.0])
+
+
+def test_thigh_clearance_shortfall_ramps_from_the_margin_to_one_at_contact() -> None:
+    gap = np.array([[0.10, 0.05], [0.025, 0.0], [-0.01, 0.04]])  # m, thighs L and R
+    np.testing.assert_allclose(rt.thigh_clearance_shortfall(gap, 0.05), [0.0, 1.5, 1.2])

@@ -193,3 +193,43 @@ def test_a_ramped_term_pays_nothing_before_its_start_and_its_weight_after():
     assert "ramp" not in cfg.to_dict()["terms"]["stable"]
     with pytest.raises(ValueError, match="cannot ramp 'alive'"):
         with_ramps(base, {"alive": (0, 10)})
+
+
+def test_thigh_clearance_measures_the_thigh_end_from_the_highest_ground_near_it():
+    import mujoco
+
+    from tron1cli.env.rewards import THIGH_REACH_M
+
+    # the site ends the thigh cylinder's axis, 0.24 m down the 0.30 m hip-knee line: with every
+    # joint at 0 and the base 0.812 m up it is 0.344 m above the soles, 0.14 m behind the base
+    model = robot.load_spec().compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    base = data.body("base").xpos
+    np.testing.assert_allclose(data.site("thigh_L_end").xpos - base, [-0.14144, 0.105, -0.468])
+    np.testing.assert_allclose(data.site("thigh_R_end").xpos - base, [-0.14144, -0.105, -0.468])
+
+    env = fake_env(3)
+    ends = np.array([[0.0, 0.1, 0.344], [0.0, -0.1, 0.344]])  # a standing robot's thigh ends (m)
+    env.state.thigh_end_pos = np.tile(ends, (3, 1, 1))
+    block = np.array([0.0, 0.30, 0.33])  # ground near both ends: flat, a 30 cm block, a 33 cm block
+    reached = []
+
+    def highest_ground(xy, reach):
+        reached.append(reach)
+        return block.copy()
+
+    env.highest_ground = highest_ground
+    # gaps 0.309, 0.009 and -0.021 m for both thighs: (0.05 - gap) / 0.05 each, at most 1
+    np.testing.assert_allclose(TERMS["thigh_clearance"](env), [0.0, 2 * 0.82, 2.0])
+    assert reached == [THIGH_REACH_M, THIGH_REACH_M]
+
+
+def test_thigh_clearance_margin_is_a_reward_setting_recorded_with_the_term():
+    from tron1cli.env.rewards import with_settings, with_weights
+
+    cfg = with_settings(with_weights(RewardConfig(), {"thigh_clearance": -2.0}), {"thigh_clearance_m": 0.08})
+    assert RewardConfig.from_dict(cfg.to_dict()).thigh_clearance_m == 0.08
+    assert "thigh_clearance_m" not in RewardConfig().to_dict()  # older runs' configs unchanged
+    with pytest.raises(ValueError, match="thigh_clearance_m must be a positive length"):
+        RewardConfig(thigh_clearance_m=0.0)

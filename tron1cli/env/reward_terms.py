@@ -143,6 +143,14 @@ def foot_stumble(foot_force: np.ndarray, ratio: float = 2.0) -> np.ndarray:
     return np.sum(horizontal > ratio * np.abs(f[..., 2]), axis=-1).astype(np.float64)
 
 
+def thigh_clearance_shortfall(gap: np.ndarray, margin: float) -> np.ndarray:
+    """Thigh clearance penalty (N,): sum over thighs of min(1, max(0, margin - gap) / margin), 1 a
+    thigh at or below the ground near it; ``gap`` (N, T) m between each thigh's surface and the
+    highest ground near it, ``margin`` m. Warns before the contact that ends an episode (a
+    backward knee meeting a block)."""
+    return np.sum(np.clip((margin - _f64(gap)) / margin, 0.0, 1.0), axis=-1)
+
+
 def joint_limit_violations(
     q: np.ndarray,
     qd: np.ndarray,

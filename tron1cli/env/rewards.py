@@ -99,7 +99,9 @@ class RewardConfig:
     from ``gait_clearance_m`` (level 0) to this (the top level), so that higher risers get higher
     steps; gait_clearance_reach_m: the apex is measured from the highest terrain within this
     distance (m) of the foot (0: the terrain under it), so a foot nearing a riser is asked to clear
-    the tread above; ablation: the preset this config came from (recorded with the run).
+    the tread above; thigh_clearance_m: the gap (m) between a thigh and the highest ground within
+    ``THIGH_REACH_M`` of its lower end below which the ``thigh_clearance`` term starts to penalise;
+    ablation: the preset this config came from (recorded with the run).
     """
 
     terms: Mapping[str, TermCfg] = field(default_factory=lambda: MappingProxyType(_paper_terms()))
@@ -112,6 +114,7 @@ class RewardConfig:
     gait_clearance_m: float = 0.1
     gait_clearance_top_m: float | None = None
     gait_clearance_reach_m: float = 0.0
+    thigh_clearance_m: float = 0.05
     ablation: str = "none"
 
     def __post_init__(self) -> None:
@@ -120,7 +123,7 @@ class RewardConfig:
             raise ValueError(f"unknown reward terms: {sorted(unknown)}")
         if not self.terms:
             raise ValueError("a reward needs at least one term")
-        for name in ("gait_clearance_m", "gait_clearance_top_m", "z_c"):
+        for name in ("gait_clearance_m", "gait_clearance_top_m", "z_c", "thigh_clearance_m"):
             v = getattr(self, name)
             if v is not None and not (isinstance(v, int | float) and 0.0 < v < 10.0):
                 raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
@@ -159,6 +162,7 @@ class RewardConfig:
             **(
                 {"gait_clearance_reach_m": self.gait_clearance_reach_m} if self.gait_clearance_reach_m else {}
             ),
+            **({"thigh_clearance_m": self.thigh_clearance_m} if "thigh_clearance" in self.terms else {}),
             "ablation": self.ablation,
             "groups": list(self.groups),
         }
@@ -259,6 +263,7 @@ REWARD_SETTINGS = (
     "gait_clearance_m",
     "gait_clearance_top_m",
     "gait_clearance_reach_m",
+    "thigh_clearance_m",
 )
 
 
@@ -322,6 +327,17 @@ def _swing_clearance(env: Tron1Env) -> np.ndarray:
     return gait.clearance_shortfall(feet[:, :, 2] - robot.FOOT_RADIUS - ground, target, h)
 
 
+#: m: the ground a thigh end is measured from is the highest within this of its point
+THIGH_REACH_M = 0.10
+
+
+def _thigh_clearance(env: Tron1Env) -> np.ndarray:
+    ends = env.state.thigh_end_pos
+    ground = np.stack([env.highest_ground(ends[:, i, :2], THIGH_REACH_M) for i in range(2)], axis=1)
+    gap = ends[:, :, 2] - robot.THIGH_RADIUS - ground
+    return rt.thigh_clearance_shortfall(gap, env.reward_cfg.thigh_clearance_m)
+
+
 def _stance_speed(env: Tron1Env) -> np.ndarray:
     v = np.linalg.norm(env.state.foot_vel, axis=-1) / env.reward_cfg.gait_speed_scale
     return np.sum(env.desired_contact() * (1.0 - np.exp(-(v**2))), axis=1)
@@ -352,6 +368,7 @@ TERMS: dict[str, Callable[[Tron1Env], np.ndarray]] = {
     "gait_swing_force": _swing_force,
     "gait_stance_speed": _stance_speed,
     "gait_swing_clearance": _swing_clearance,
+    "thigh_clearance": _thigh_clearance,
     "alive": lambda env: np.ones(env.n),
 }
 

@@ -30,6 +30,7 @@ TOTAL_MASS = 18.593  #: kg, feet included (URDF figure).
 BASE_HEIGHT_ZERO_POSE = 0.812  #: base origin above the foot soles with every joint at 0 (m).
 COM_HEIGHT_ZERO_POSE = 0.561  #: whole-body CoM above the soles with every joint at 0 (m).
 FOOT_RADIUS = 0.032  #: m; the contact point is this far below the foot centre.
+THIGH_RADIUS = 0.035  #: m, radius of the thigh cylinders (sites ``thigh_{L,R}_end`` end their axes).
 
 #: Joint ranges (rad), in JOINT_NAMES order.
 JOINT_RANGES = np.array(

@@ -37,6 +37,7 @@ class RobotState:
     com_vel: np.ndarray  # (N, 3) m/s
     foot_pos: np.ndarray  # (N, 2, 3) m, foot sphere centres (L, R)
     foot_vel: np.ndarray  # (N, 2, 3) m/s
+    thigh_end_pos: np.ndarray  # (N, 2, 3) m, lower end of each thigh cylinder's axis (L, R)
     foot_force: np.ndarray  # (N, 2, 3) N, ground reaction on each foot, world frame
     foot_contact_pos: np.ndarray  # (N, 2, 3) m, contact centroid (only meaningful in contact)
     foot_in_contact: np.ndarray  # (N, 2) bool
@@ -91,6 +92,7 @@ def read_state(phys: BatchedPhysics, ids: np.ndarray | None = None) -> RobotStat
         com_vel=sens("com_vel").copy(),
         foot_pos=np.stack([sens(f"{f}_pos") for f in feet], axis=1),
         foot_vel=np.stack([sens(f"{f}_vel") for f in feet], axis=1),
+        thigh_end_pos=np.stack([sens(f"thigh_{s}_end_pos") for s in ("L", "R")], axis=1),
         # the sensor reports the force the foot exerts on the ground; the reaction is its negative
         foot_force=-np.stack([c[:, 1:4] for c in contact], axis=1) * (found[:, :, None] > 0),
         foot_contact_pos=np.stack([c[:, 4:7] for c in contact], axis=1),
