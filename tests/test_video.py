@@ -162,3 +162,19 @@ def test_eval_films_each_speed_of_a_sweep(tmp_path):
     assert r.returncode == 0, r.stderr
     frames, _ = decode(out)
     assert len(frames) == 3 * 6
+
+
+def test_only_a_fall_is_marked_fell_an_edge_end_holds_the_pose_unmarked(tmp_path):
+    from tron1cli.viz.video import VideoRecorder, _View
+
+    take = VideoRecorder(tmp_path / "v.mp4", fps=30).take([0, 1])
+    pose = np.arange(13.0)
+    z3, z6 = np.zeros(3), np.zeros(6)
+    take.views = [_View(i, "", {}, [pose], [z3], [z3], [z6], [False]) for i in (0, 1)]
+    take.frames = 1
+    # both episodes end at 0.1 s (frames 1 and 2 are new): env 0 fell, env 1 reached the edge
+    take.step(None, 0.1, done=np.array([True, True]), failed=np.array([True, False]))
+    assert take.views[0].ended == [False, True, True]
+    assert take.views[1].ended == [False, False, False]
+    for v in take.views:  # the last pose is held either way, not the reset one
+        assert all(np.array_equal(q, pose) for q in v.qpos)

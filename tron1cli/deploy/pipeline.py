@@ -301,7 +301,7 @@ class DeploySim:
                 res = env.step(action)
             steps = k + 1
             if self.video is not None:
-                self.video.step(env, steps * dt, res.done)
+                self.video.step(env, steps * dt, res.done, res.failed)
             if res.done[0]:
                 ended = "unstable" if res.unstable[0] else "fell" if res.failed[0] else "edge"
                 fell_by = cause_words(res.fall_causes[0]) if res.failed[0] else None

@@ -364,7 +364,7 @@ def run_batch(
             path_yaw = np.where(env.commands.steering, env.commands.heading, path_yaw)
             res = env.step(action)
             if video is not None:
-                video.step(env, (t + 1) * env.policy_dt, res.done)
+                video.step(env, (t + 1) * env.policy_dt, res.done, res.failed)
             if after_step is not None:
                 after_step(env, res, walking)
             falls = walking & (res.failed | res.unstable)

@@ -195,8 +195,9 @@ class _View:
     cmd: list[np.ndarray] = field(default_factory=list)
     vel: list[np.ndarray] = field(default_factory=list)
     wrench: list[np.ndarray] = field(default_factory=list)
-    ended: list[bool] = field(default_factory=list)
+    ended: list[bool] = field(default_factory=list)  # per frame: the env has fallen (FELL shown)
     done: bool = False
+    fell: bool = False
     last: tuple[float, np.ndarray] | None = None  # (t, qpos) of the last policy-step sample
 
 
@@ -243,24 +244,30 @@ class Take:
         self.views = [_View(i, lab, _ground(env, i)) for i, lab in zip(self.envs, self.labels, strict=True)]
         self._sample(env, 0.0, None)
 
-    def step(self, env: Tron1Env, t_s: float, done: np.ndarray | None = None) -> None:
+    def step(
+        self, env: Tron1Env, t_s: float, done: np.ndarray | None = None, failed: np.ndarray | None = None
+    ) -> None:
         """After a policy step ending at ``t_s`` (s): frames up to ``t_s``; ``done`` (N,) ends views
-        whose env fell (their last pose is held, marked)."""
-        self._sample(env, t_s, done)
+        whose episode ended (their last pose is held), ``failed`` (N,) marks those that fell
+        (``FELL``; None: every ended one), not those that reached the tile's edge."""
+        self._sample(env, t_s, done, done if failed is None else failed)
 
-    def _sample(self, env: Tron1Env, t_s: float, done: np.ndarray | None) -> None:
+    def _sample(
+        self, env: Tron1Env, t_s: float, done: np.ndarray | None, failed: np.ndarray | None = None
+    ) -> None:
         fps = self.recorder.fps
         n_new = max(0, int(math.ceil(t_s * fps - 1e-6)) - self.frames)  # frames at k / fps < t_s
         for v in self.views:
             if not v.done and done is not None and bool(done[v.env]):
                 v.done = True  # the state now is the reset one: hold the last pose
+                v.fell = failed is not None and bool(failed[v.env])
             if v.done:
                 for _ in range(n_new):
                     v.qpos.append(v.qpos[-1])
                     v.cmd.append(v.cmd[-1])
                     v.vel.append(np.zeros(3))
                     v.wrench.append(np.zeros(6))
-                    v.ended.append(True)
+                    v.ended.append(v.fell)
                 continue
             q = np.array(env.physics.qpos[v.env], dtype=np.float64)
             cmd = _world_command(env, v.env)
