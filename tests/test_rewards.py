@@ -208,6 +208,7 @@ def test_thigh_clearance_measures_the_thigh_end_from_the_highest_ground_near_it(
     base = data.body("base").xpos
     np.testing.assert_allclose(data.site("thigh_L_end").xpos - base, [-0.14144, 0.105, -0.468])
     np.testing.assert_allclose(data.site("thigh_R_end").xpos - base, [-0.14144, -0.105, -0.468])
+    assert model.geom("thigh_L_geom").size[0] == model.geom("thigh_R_geom").size[0] == robot.THIGH_RADIUS
 
     env = fake_env(3)
     ends = np.array([[0.0, 0.1, 0.344], [0.0, -0.1, 0.344]])  # a standing robot's thigh ends (m)

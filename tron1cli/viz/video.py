@@ -248,9 +248,9 @@ class Take:
         self, env: Tron1Env, t_s: float, done: np.ndarray | None = None, failed: np.ndarray | None = None
     ) -> None:
         """After a policy step ending at ``t_s`` (s): frames up to ``t_s``; ``done`` (N,) ends views
-        whose episode ended (their last pose is held), ``failed`` (N,) marks those that fell
-        (``FELL``; None: every ended one), not those that reached the tile's edge."""
-        self._sample(env, t_s, done, done if failed is None else failed)
+        whose episode ended (their last pose is held), ``failed`` (N,) marks those of them that fell
+        (``FELL``), not those that reached the tile's edge."""
+        self._sample(env, t_s, done, failed)
 
     def _sample(
         self, env: Tron1Env, t_s: float, done: np.ndarray | None, failed: np.ndarray | None = None
