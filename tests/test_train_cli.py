@@ -240,8 +240,10 @@ def test_resumed_run_keeps_its_terrain_levels(tmp_path):
     try:
         assert np.array_equal(resumed.env.curriculum.level, np.arange(8) % bank.cfg.num_levels)
         assert np.array_equal(resumed.env.curriculum.tile, cur.tile)
-        with pytest.raises(ValueError, match="another terrain type or level"):
+        with pytest.raises(ValueError, match="other levels than its tiles"):
             resumed.env.restore_curriculum({"level": cur.level + 1, "tile": cur.tile})
+        with pytest.raises(ValueError, match="outside this terrain bank"):
+            resumed.env.restore_curriculum({"level": cur.level, "tile": cur.tile + bank.K})
     finally:
         resumed.close()
 
@@ -304,7 +306,8 @@ def test_bf16_on_a_cpu_that_emulates_it_is_noted(monkeypatch, capsys):
 
 def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
     """A new campaign phase (--init) starts on the levels its source reached when both runs train
-    on the same terrain bank with the same env count; otherwise the curriculum starts at level 0."""
+    on the same terrain bank: each env on its own level and tile with the same env count and mix,
+    else each on the level of a source env of its terrain type; another bank starts at level 0."""
     from dataclasses import replace
 
     import numpy as np
@@ -332,14 +335,28 @@ def test_init_carries_terrain_levels_only_from_the_same_terrain_bank(tmp_path):
         assert torch.allclose(std.learner.model.log_std, torch.full((6,), math.log(0.4)))
     finally:
         std.close()
-    for other in (replace(preset, terrain="slopes"), replace(preset, num_envs=16)):
-        run_dir = tmp_path / f"{other.terrain}{other.num_envs}"
-        fresh = Trainer(run_dir, run_config(other, nthread=1), init=ckpt)
-        try:
-            assert not fresh.levels_carried and not fresh.cfg.init_from.endswith("carried")
-            assert not fresh.env.curriculum.level.any()
+    # the source dealt stairs up to the even envs (levels 0, 2, 4, 6), stairs down to the odd ones
+    reached = {t: cur.level[cur.kind == t].tolist() for t in (0, 1)}
+    assert reached == {0: [0, 2, 4, 6], 1: [1, 3, 5, 7]}
+    mix = {"stairs_up": 3.0, "stairs_down": 1.0}
+    for other in (replace(preset, num_envs=16), replace(preset, terrain_mix=mix)):
+        run_dir = tmp_path / f"n{other.num_envs}-{len(other.terrain_mix or {})}"
+        moved = Trainer(run_dir, run_config(other, nthread=1), init=ckpt)
+        try:  # dealt anew: per type, the source's levels in turn, each on a tile of its level
+            c = moved.env.curriculum
+            assert moved.levels_carried
+            for t in (0, 1):
+                got = c.level[c.kind == t]
+                assert np.array_equal(got, np.resize(reached[t], len(got)))
+            assert np.array_equal(bank.level[c.tile], c.level) and np.array_equal(bank.kind[c.tile], c.kind)
         finally:
-            fresh.close()
+            moved.close()
+    fresh = Trainer(tmp_path / "slopes", run_config(replace(preset, terrain="slopes"), nthread=1), init=ckpt)
+    try:
+        assert not fresh.levels_carried and not fresh.cfg.init_from.endswith("carried")
+        assert not fresh.env.curriculum.level.any()
+    finally:
+        fresh.close()
 
 
 def test_reward_weights_are_recorded_printed_and_kept_on_resume(tmp_path):

@@ -317,19 +317,26 @@ class Tron1Env:
         return {"level": self.curriculum.level.copy(), "tile": self.curriculum.tile.copy()}
 
     def restore_curriculum(self, state: dict[str, np.ndarray]) -> None:
-        """Put every env back on the level and tile of :meth:`curriculum_state` (those below this
-        env's level floor up to it, on a new tile); call before reset.
+        """Put the envs on the levels of :meth:`curriculum_state`, taken from a run on this terrain
+        bank; call before reset. Dealt the same terrain types (a resumed run), every env goes back
+        to its own level and tile; otherwise (another env count or terrain mix) each env takes the
+        level of a saved env of its type (:meth:`TerrainCurriculum.carry_levels`). Envs below their
+        type's level floor then move up to it, on a new tile.
 
-        ValueError when the state is of another env count or names tiles outside this bank."""
+        ValueError when the state names tiles outside this bank or levels other than its tiles'."""
         level, tile = np.asarray(state["level"]), np.asarray(state["tile"])
-        if level.shape != (self.n,) or tile.shape != (self.n,):
-            raise ValueError(f"curriculum state of {level.shape} envs, this env has {self.n}")
+        if level.ndim != 1 or tile.shape != level.shape or not len(level):
+            raise ValueError(f"curriculum state of {level.shape} levels and {tile.shape} tiles")
         if tile.min() < 0 or tile.max() >= self.bank.K:
             raise ValueError("curriculum state names tiles outside this terrain bank")
-        if np.any(self.bank.kind[tile] != self.curriculum.kind) or np.any(self.bank.level[tile] != level):
-            raise ValueError("curriculum state puts envs on another terrain type or level than it names")
-        self.curriculum.level[:] = level
-        self.curriculum.tile[:] = tile
+        if np.any(self.bank.level[tile] != level):
+            raise ValueError("curriculum state puts envs on other levels than its tiles")
+        kind = self.bank.kind[tile]
+        if np.array_equal(kind, self.curriculum.kind):
+            self.curriculum.level[:] = level
+            self.curriculum.tile[:] = tile
+        else:
+            self.curriculum.carry_levels(kind, level)
         self.curriculum.lift_to_floor()
         self._apply_tiles(np.arange(self.n))
 

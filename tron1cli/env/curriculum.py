@@ -133,6 +133,17 @@ class TerrainCurriculum:
         self.tile[changed] = self._draw_tiles(changed)
         return changed
 
+    def carry_levels(self, kind: np.ndarray, level: np.ndarray) -> None:
+        """Put the envs on the levels another curriculum on this bank reached, type by type: the
+        i-th env of type t takes the level of the (i mod m)-th of that curriculum's m envs of type
+        t, on a new tile; envs of a type it lacks keep their level. ``kind``, ``level``: (M,) each,
+        that curriculum's type index (bank order) and level per env."""
+        for t in range(len(self.bank.types)):
+            mine, theirs = np.flatnonzero(self.kind == t), level[kind == t]
+            if len(mine) and len(theirs):
+                self.level[mine] = np.resize(theirs, len(mine))
+        self.tile[:] = self._draw_tiles(np.arange(len(self.level)))
+
     def lift_to_floor(self) -> None:
         """Move envs below their type's floor (levels restored from another run) up to it, on a
         new tile."""

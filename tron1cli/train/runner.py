@@ -360,17 +360,18 @@ class Trainer:
             self.stats.load_state_dict(state["episode_stats"])
 
     def _carry_levels(self, source: dict) -> bool:
-        """``--init``: start every env on the terrain level and tile it had in the source run, when
-        that run trained on the same terrain bank (terrain, tile geometry, seed) with the same env
-        count, so a new phase of a campaign does not climb the curriculum again from level 0."""
+        """``--init``: start the envs on the terrain levels the source run reached, when it trained
+        on the same terrain bank (terrain, tile geometry, seed), so a new phase of a campaign does
+        not climb the curriculum again from level 0: each env on its own level and tile with the
+        same env count and terrain mix, else on the level of a source env of its terrain type
+        (:meth:`Tron1Env.restore_curriculum`)."""
         if not self.cfg.env.curriculum:
             return False
         mine = self.cfg.to_dict()["env"]
         theirs = json.loads(source["config"]).get("env")
         if not isinstance(theirs, dict):
             return False
-        keys = ("terrain", "terrain_cfg", "num_envs", "seed", "terrain_mix")
-        if any(theirs.get(k, {} if k == "terrain_mix" else None) != mine[k] for k in keys):
+        if any(theirs.get(k) != mine[k] for k in ("terrain", "terrain_cfg", "seed")):
             return False
         return self._restore_levels(source)
 
