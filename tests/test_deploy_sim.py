@@ -174,6 +174,28 @@ def test_gait_clock_and_command_schedule(tiny_ckpt, tmp_path, no_falls):
     np.testing.assert_allclose(cmds[50], [0.6, 0.1, 0.4])
 
 
+def test_the_tile_holds_the_fastest_command_for_the_whole_run(tiny_ckpt):
+    """10 s at 0.5 m/s from the tile centre reaches 5 m: the 8 m training tile would end after 4,
+    so the tile is sized as eval's (reach at the speed plus its slack, margin and rim inside)."""
+    from tron1cli.env.core import EDGE_MARGIN_M
+    from tron1cli.evaluation.protocol import SPEED_SLACK_MPS
+
+    pol = load_policy(tiny_ckpt)
+    sched = CommandSchedule(np.array([0.0, 2.0]), np.array([[0.3, 0.0, 0.0], [0.3, -0.4, 0.2]]))
+    assert sched.max_speed() == pytest.approx(0.5)
+    trained = pol.run_cfg.env.terrain_cfg
+    for duration, grown in ((10.0, True), (1.0, False)):
+        sim = DeploySim(pol, DeployConfig(terrain="stairs", schedule=sched, duration_s=duration))
+        try:
+            tile = sim.env.bank.cfg
+        finally:
+            sim.close()
+        reach = duration * (0.5 + SPEED_SLACK_MPS)
+        assert tile.tile_size_m / 2 >= reach + EDGE_MARGIN_M + tile.border_m
+        assert (tile.tile_size_m > trained.tile_size_m) == grown  # never below the training tile
+        assert tile.step_height_m == trained.step_height_m and tile.step_tread_m == trained.step_tread_m
+
+
 def test_gait_frequency_can_be_set(tiny_ckpt, no_falls):
     """--gait-freq holds the clock at the asked frequency for the whole run."""
     sim = DeploySim(load_policy(tiny_ckpt), DeployConfig(duration_s=0.2, gait_freq_hz=2.5))

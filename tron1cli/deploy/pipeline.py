@@ -13,7 +13,9 @@ depth thread renders with the same renderer and noise model instead.
 
 The run is one episode: it ends at ``duration_s``, or earlier when the robot falls, when the
 simulation goes unstable, or when it reaches the edge of its terrain tile (on a height field;
-flat ground is a plane without an edge). Commands are pinned (no resampling) and follow the
+flat ground is a plane without an edge). The tile is sized as eval's are
+(:func:`tron1cli.evaluation.protocol.eval_terrain_config`): the schedule's fastest command held
+for the whole run stays on the terrain. Commands are pinned (no resampling) and follow the
 schedule; a schedule change reaches the observation at the next policy step.
 """
 
@@ -38,6 +40,7 @@ from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terminations import cause_words
 from tron1cli.env.terrain import resolve_terrain
 from tron1cli.errors import Tron1Error, UsageError
+from tron1cli.evaluation.protocol import eval_terrain_config
 from tron1cli.policy.contract import check_matches_env
 from tron1cli.policy.runtime import Policy
 
@@ -212,6 +215,7 @@ class DeploySim:
             sim_dt=sim_dt,
             decimation=decimation,
             terrain=cfg.terrain,
+            terrain_cfg=eval_terrain_config(base.terrain_cfg, cfg.duration_s, cfg.schedule.max_speed()),
             terrain_mix={},
             level_floor={},
             curriculum=False,

@@ -76,6 +76,10 @@ class CommandSchedule:
         arr = np.array(rows, dtype=float)
         return cls(arr[:, 0], arr[:, 1:])
 
+    def max_speed(self) -> float:
+        """The fastest planar command of the schedule, max hypot(v_x, v_y) (m/s)."""
+        return float(np.hypot(self.values[:, 0], self.values[:, 1]).max())
+
     def at(self, t: float) -> np.ndarray:
         """The command (3,) in force at simulation time ``t`` (s); zero before the first entry."""
         k = int(np.searchsorted(self.times, t + 1e-9, side="right")) - 1
