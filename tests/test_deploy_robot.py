@@ -238,3 +238,20 @@ def test_depth_crop_resize_keeps_the_contracts_view():
     assert out[0, 0] < 10 and out[0, -1] > 838  # the full view, left to right
     narrow = crop_resize(img, (87.0, 58.0), (43.5, 29.0), 60, 80)
     assert narrow[0, 0] > 200 and narrow[0, -1] < 648  # a centre crop
+
+
+def test_sim_robot_reach_holds_the_walk_on_the_terrain_under_test():
+    """--reach 6 (10 s at 0.5 m/s, with slack) puts a 13.6 m tile of the hardest stairs up under the
+    robot; without it the robot stands on the 8 m training tile."""
+    from tron1cli.deploy.sim_robot import SimRobot, SimRobotConfig
+    from tron1cli.env.core import EDGE_MARGIN_M
+
+    sim = SimRobot(SimRobotConfig(terrain="stairs_up", level=-1, noise=False, reach_m=6.0), None)
+    cfg = sim.bank.cfg
+    # half side >= 6 + 0.5 margin + 0.25 rim + 0.05 sample = 6.8 m -> 272 samples of 5 cm
+    assert cfg.tile_size_m == pytest.approx(13.6) and sim.terrain_type == "stairs_up"
+    assert cfg.half_extent_m - cfg.border_m - EDGE_MARGIN_M >= 6.0
+    h = sim.bank.heights[sim.tile]
+    c = cfg.R // 2
+    assert h[c + round(5.5 / cfg.resolution_m), c] > h[c, c] + 1.0  # 5.5 m out it still climbs
+    assert SimRobot(SimRobotConfig(terrain="stairs_up", level=-1), None).bank.cfg.tile_size_m == 8.0

@@ -169,6 +169,16 @@ def sim_robot(
         None, "--duration", callback=finite, min=0.1, help="Wall seconds to run [default: until Ctrl-C]."
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the terrain and the noise."),
+    reach: float | None = typer.Option(
+        None,
+        "--reach",
+        callback=finite,
+        min=0.0,
+        max=100.0,
+        metavar="M",
+        help="Metres the robot may walk from the start in any direction and stay on the terrain "
+        "under test, e.g. 6 for 10 s at 0.5 m/s [default: the 8 m training tile].",
+    ),
     report: Path | None = typer.Option(
         None, "--report", metavar="FILE.json", help="Write the run's figures and base velocity log here."
     ),
@@ -203,6 +213,7 @@ def sim_robot(
         duration_s=duration,
         seed=seed,
         depth_to=target,
+        reach_m=reach,
     )
     with err.status("building the world..."):
         try:

@@ -39,6 +39,7 @@ from tron1cli.env.math3d import quat_rotate_inverse, quat_to_mat
 from tron1cli.env.scene import build_model, set_tile
 from tron1cli.env.terrain import TerrainBank, ground_height, resolve_terrain
 from tron1cli.errors import UsageError
+from tron1cli.evaluation.protocol import terrain_for_reach
 
 MAX_LAG_S = 0.1  #: behind the wall clock by more than this, the loop slips instead of catching up
 HOIST_HEIGHT_M = 0.83  #: base origin above the ground while hoisted (the training reset height)
@@ -52,7 +53,9 @@ class SimRobotConfig:
     hoist_s: seconds after the first command at which the hoist lets go (None: never); noise:
     training's sensor noise on the published state and IMU; duration_s: wall seconds to run
     (None: until stopped); seed: terrain and noise seed; depth_to: (host, port) to send the
-    depth camera's frames to (None: no camera); depth_hz: their rate in simulation time."""
+    depth camera's frames to (None: no camera); depth_hz: their rate in simulation time; reach_m:
+    metres the robot may walk from the start in any direction and stay on the terrain under test
+    (None: the training tile)."""
 
     terrain: str = "flat"
     level: int = 0
@@ -63,6 +66,7 @@ class SimRobotConfig:
     seed: int = 0
     depth_to: tuple[str, int] | None = None
     depth_hz: float = 30.0
+    reach_m: float | None = None
 
 
 class SimRobot:
@@ -74,6 +78,8 @@ class SimRobot:
         except ValueError as e:
             raise UsageError(str(e)) from None
         tcfg = EnvConfig().terrain_cfg
+        if cfg.reach_m is not None:
+            tcfg = terrain_for_reach(tcfg, cfg.reach_m)
         if not (cfg.level == -1 or 0 <= cfg.level < tcfg.num_levels):
             raise UsageError(f"--level {cfg.level} outside 0..{tcfg.num_levels - 1} (or -1 for the hardest)")
         self.cfg, self.link = cfg, link

@@ -127,16 +127,20 @@ def top_speed(commands: CommandConfig) -> float:
 
 
 def eval_terrain_config(cfg: TerrainConfig, window_s: float, speed_mps: float) -> TerrainConfig:
-    """The training terrain ``cfg`` on a tile large enough for a whole window.
+    """The training terrain ``cfg`` on a tile large enough for a whole window: a robot leaving the
+    tile centre at ``speed_mps + SPEED_SLACK_MPS`` for ``window_s`` (see :func:`terrain_for_reach`)."""
+    return terrain_for_reach(cfg, window_s * (speed_mps + SPEED_SLACK_MPS))
 
-    A robot leaving the tile centre at ``speed_mps + SPEED_SLACK_MPS`` for ``window_s`` stays
-    ``EDGE_MARGIN_M`` inside the terrain: half side >= reach + margin + rim, rounded up to whole
-    samples; never smaller than the training tile. Discrete tiles get blocks in proportion to the
-    terrain area (same density); every other type is scale-free (same step height and tread,
-    slope, noise amplitude and cell).
+
+def terrain_for_reach(cfg: TerrainConfig, reach_m: float) -> TerrainConfig:
+    """The training terrain ``cfg`` on a tile where a robot ``reach_m`` (m) from the tile centre in
+    any direction stays ``EDGE_MARGIN_M`` inside the terrain.
+
+    Half side >= reach + margin + rim, rounded up to whole samples; never smaller than the training
+    tile. Discrete tiles get blocks in proportion to the terrain area (same density); every other
+    type is scale-free (same step height and tread, slope, noise amplitude and cell).
     """
-    reach = window_s * (speed_mps + SPEED_SLACK_MPS)
-    half = reach + EDGE_MARGIN_M + cfg.border_m + cfg.resolution_m
+    half = reach_m + EDGE_MARGIN_M + cfg.border_m + cfg.resolution_m
     samples = math.ceil(2.0 * half / cfg.resolution_m - 1e-9)
     side = max(cfg.tile_size_m, round(samples * cfg.resolution_m, 9))
     if side == cfg.tile_size_m:
