@@ -89,3 +89,39 @@ def test_pd_drives_joints_with_the_base_held():
 def test_missing_asset_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="robot model not found"):
         robot.load_spec(tmp_path / "nope.xml")
+
+
+_INCLINE = """<mujoco><option timestep="{dt}" integrator="implicitfast" cone="{cone}" impratio="{imp}"/>
+<worldbody><geom type="plane" size="5 5 .1" axisangle="{axis} {deg}" friction="{mu} 0.005 0.0001"/>
+<body pos="0 0 0.06"><joint type="slide" axis="1 0 0"/><joint type="slide" axis="0 1 0"/>
+<joint type="slide" axis="0 0 1"/><geom type="sphere" size="0.03" mass="2" friction="{mu} 0.005 0.0001"/>
+</body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("axis", ["0 1 0", "0.7071 0.7071 0"])  # down-slope along x; diagonal
+def test_point_foot_holds_a_slope_as_coulomb_says(model, axis):
+    """With the asset's contact model a point foot (a sphere that cannot roll) on the hardest slope
+    (32.1 deg, tan 0.628) holds at friction 0.7 whichever way the slope falls, and slides at 0.5:
+    Coulomb's threshold, not the pyramidal cone's (which let it slide at 0.8 on the diagonal)."""
+    from tron1cli.env.terrain import TerrainConfig
+
+    cone = {mujoco.mjtCone.mjCONE_ELLIPTIC: "elliptic", mujoco.mjtCone.mjCONE_PYRAMIDAL: "pyramidal"}
+    deg = np.degrees(np.arctan(TerrainConfig().slope_tan[1]))
+    speed = {}
+    for mu in (0.5, 0.7):
+        xml = _INCLINE.format(
+            dt=model.opt.timestep,
+            cone=cone[model.opt.cone],
+            imp=model.opt.impratio,
+            axis=axis,
+            deg=deg,
+            mu=mu,
+        )
+        m = mujoco.MjModel.from_xml_string(xml)
+        d = mujoco.MjData(m)
+        mujoco.mj_step(m, d, round(1.0 / m.opt.timestep))  # settle
+        x0 = d.qpos.copy()
+        mujoco.mj_step(m, d, round(2.0 / m.opt.timestep))
+        speed[mu] = np.linalg.norm(d.qpos - x0) / 2.0
+    assert speed[0.7] < 0.002  # m/s: held (creep under 2 mm/s)
+    assert speed[0.5] > 0.5  # below tan(32.1 deg) it slides away
