@@ -45,14 +45,17 @@ def falls_by_friction(
         before_step=note_friction,
         after_step=count,
     )
-    rows = []
-    for lo, hi in zip(EDGES[:-1], EDGES[1:], strict=True):
-        sel = (mu >= lo) & (mu < hi if hi < EDGES[-1] else mu <= hi)
-        n = int(sel.sum())
-        p = 1.0 - fell[sel].mean() if n else float("nan")
-        rows.append((f"{lo:.1f}-{hi:.1f}", n, 100 * p, 100 * np.sqrt(p * (1 - p) / max(n, 1))))
-    rows.append(("all", envs, 100 * (1 - fell.mean()), 100 * np.sqrt(fell.mean() * (1 - fell.mean()) / envs)))
-    return rows
+    band = np.digitize(mu, EDGES[1:-1])  # 0..5; the top edge falls in the last band
+    labels = [f"{lo:.1f}-{hi:.1f}" for lo, hi in zip(EDGES[:-1], EDGES[1:], strict=True)]
+    rows = [_row(label, fell[band == k]) for k, label in enumerate(labels)]
+    return [*rows, _row("all", fell)]
+
+
+def _row(label: str, fell: np.ndarray) -> tuple:
+    """(label, envs, success %, its standard error) of the envs whose falls are ``fell``."""
+    n = len(fell)
+    p = 1.0 - fell.mean() if n else float("nan")
+    return label, n, 100 * p, 100 * np.sqrt(p * (1 - p) / max(n, 1))
 
 
 def main() -> None:
