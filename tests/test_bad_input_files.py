@@ -187,6 +187,10 @@ def test_run_config_of_the_wrong_type_names_the_field():
             "run_config.env.terrain_cfg should be an object",
         ),
         ({**good, "reward": [1]}, "reward should be an object"),
+        (  # a teacher share edited by hand without the env's depth split: students would be blind
+            {**good, "env": {**good["env"], "perception": True, "depth_from": 256}},
+            "env.depth_from is 256 but the students start at env 512 ",
+        ),
     ):
         with pytest.raises(ValueError, match=text):
             RunConfig.from_dict(bad)

@@ -69,9 +69,21 @@ class RunConfig:
             raise ValueError(f"init_action_std must be a positive number, got {self.init_action_std}")
         if self.gait_prior != self.env.gait.enabled:
             raise ValueError("gait_prior and env.gait.enabled disagree")
+        n_teacher = self.n_teacher
+        if self.env.perception and self.env.depth_from != n_teacher:
+            raise ValueError(
+                f"env.depth_from is {self.env.depth_from} but the students start at env {n_teacher} "
+                f"(num_envs {self.env.num_envs} x learner.teacher_ratio {self.learner.teacher_ratio}): "
+                "students without depth images would train blind"
+            )
         clocked = self.reward.clock_terms
         if clocked and not self.gait_prior:
             raise ValueError(f"reward term {clocked[0]} follows the gait clock: it needs --gait-prior")
+
+    @property
+    def n_teacher(self) -> int:
+        """Envs in the teacher group: ``[0, n_teacher)`` teachers, the rest students."""
+        return int(round(self.env.num_envs * self.learner.teacher_ratio))
 
     @property
     def reward(self) -> RewardConfig:
@@ -311,7 +323,7 @@ class Trainer:
         torch.set_num_threads(cfg.env.nthread)
         self.env = Tron1Env(cfg.env, cfg.reward, backend=backend)
         self.backend = backend
-        self.n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
+        self.n_teacher = cfg.n_teacher
         self.learner = VisionCTSLearner(
             obs_dims(self.env),
             cfg.env.num_envs,
