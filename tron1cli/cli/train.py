@@ -517,7 +517,7 @@ def train(
         check_batch(cfg)
     except ValueError as e:
         fail(str(e), 2)
-    n_teacher = int(round(cfg.env.num_envs * cfg.learner.teacher_ratio))
+    n_teacher = cfg.n_teacher
     if n_teacher >= cfg.env.num_envs and not cfg.env.perception:
         fail(
             f"--teacher-ratio {cfg.learner.teacher_ratio:g} of {cfg.env.num_envs} envs leaves no "

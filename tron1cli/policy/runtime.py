@@ -51,8 +51,7 @@ def _load_model(path: Path) -> tuple[torch.nn.Module, Any, dict]:
 
 def _refuse_teacher_stage(path: Path, run_cfg) -> None:
     """Tron1Error for a checkpoint of the teacher stage: every env a teacher, no student trained."""
-    n = run_cfg.env.num_envs
-    if int(round(n * run_cfg.learner.teacher_ratio)) >= n:
+    if run_cfg.n_teacher >= run_cfg.env.num_envs:
         raise Tron1Error(
             f"{path} is a teacher-stage checkpoint (no student was trained): evaluate it with "
             "--actor teacher, or finish it with tron1 train --preset perceptive --init"

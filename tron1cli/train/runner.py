@@ -69,10 +69,9 @@ class RunConfig:
             raise ValueError(f"init_action_std must be a positive number, got {self.init_action_std}")
         if self.gait_prior != self.env.gait.enabled:
             raise ValueError("gait_prior and env.gait.enabled disagree")
-        n_teacher = self.n_teacher
-        if self.env.perception and self.env.depth_from != n_teacher:
+        if self.env.perception and self.env.depth_from != self.n_teacher:
             raise ValueError(
-                f"env.depth_from is {self.env.depth_from} but the students start at env {n_teacher} "
+                f"env.depth_from is {self.env.depth_from} but the students start at env {self.n_teacher} "
                 f"(num_envs {self.env.num_envs} x learner.teacher_ratio {self.learner.teacher_ratio}): "
                 "students without depth images would train blind"
             )
