@@ -12,9 +12,10 @@
 # so a killed run goes on where it stopped; delete a step's folder to redo it.
 #
 # Environment: ENVS (Table I and pushes, default 1024, as the paper), FIG_ENVS (Fig. 5, default
-# 256), CLIMB_ENVS (the climb probe, default 128), STEPS (default 500 = 10 s), RUN (the campaign's run directory for the curves), SHIP_TO
-# (the shipped files without extension, default policies/tron1_perceptive).
-# On two cores the whole run takes about two hours; nothing else should run beside it.
+# 256), CLIMB_ENVS (the climb probe, default 128), STEPS (default 500 = 10 s), RUN (the
+# campaign's run directory, for the curves), SHIP_TO (the shipped files without extension,
+# default policies/tron1_perceptive). On two cores the whole run should take about two hours
+# (estimated from single evaluations); nothing else should run beside it.
 set -euo pipefail
 
 ckpt=${1:?usage: bash tools/ship_perceptive.sh CKPT [OUT]}
