@@ -131,7 +131,8 @@ class LearnerConfig:
             should hand in no-return pixels as depth_max or more.
 
     Concurrent teacher-student
-        teacher_ratio: share of envs in the teacher group (envs [0, round(N * ratio)) are teachers).
+        teacher_ratio: share of envs in the teacher group (envs [0, round(N * ratio)) are teachers;
+            :func:`teacher_count`).
         critic_weights: reward group -> weight of its normalised advantage in the sum (missing = 1.0).
         rec_coef: weight of the reconstruction loss; rec_lr: its own Adam learning rate (fixed).
         rec_all_envs: the MLP estimators (privileged, and the history-only heightmap estimator) also
@@ -295,6 +296,12 @@ class LearnerConfig:
 
 
 #: LearnerConfig fields that ``tron1 train`` sets through an option of their own
+def teacher_count(num_envs: int, teacher_ratio: float) -> int:
+    """Envs in the teacher group of ``num_envs`` at ``teacher_ratio``: envs ``[0, count)`` are
+    teachers, the rest students (whose depth the env renders from there)."""
+    return int(round(num_envs * teacher_ratio))
+
+
 OWN_OPTIONS = {
     "num_steps_per_env": "--steps-per-env",
     "actor_hidden": "--hidden",

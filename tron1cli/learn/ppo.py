@@ -36,7 +36,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from tron1cli.learn.config import LearnerConfig, ObsDims
+from tron1cli.learn.config import LearnerConfig, ObsDims, teacher_count
 from tron1cli.learn.models import StudentPolicy, VisionCTS, l2_normalize
 from tron1cli.learn.storage import RolloutStorage
 
@@ -93,7 +93,7 @@ class VisionCTSLearner:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
         self.dims, self.cfg, self.groups = dims, cfg, groups
         self.num_envs = N = int(num_envs)
-        self.n_teacher = int(round(N * cfg.teacher_ratio))
+        self.n_teacher = teacher_count(N, cfg.teacher_ratio)
         self.n_student = N - self.n_teacher
         self.device = torch.device(device)
         self.seed = int(seed)

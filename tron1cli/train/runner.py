@@ -25,6 +25,7 @@ from tron1cli.env.rewards import RewardConfig, make_reward_config, with_ramps, w
 from tron1cli.errors import Tron1Error, UsageError, describe
 from tron1cli.fileio import atomic_write, clean_stale_temps
 from tron1cli.learn import LearnerConfig, ObsDims, VisionCTSLearner
+from tron1cli.learn.config import teacher_count
 from tron1cli.learn.warm_start import WarmStart, warm_start
 from tron1cli.train.checkpoint import load_training_checkpoint, nonfinite_weights, save_checkpoint
 from tron1cli.train.layout import CONFIG, METRICS, RunLock, checkpoint_dir, latest_checkpoint
@@ -82,7 +83,7 @@ class RunConfig:
     @property
     def n_teacher(self) -> int:
         """Envs in the teacher group: ``[0, n_teacher)`` teachers, the rest students."""
-        return int(round(self.env.num_envs * self.learner.teacher_ratio))
+        return teacher_count(self.env.num_envs, self.learner.teacher_ratio)
 
     @property
     def reward(self) -> RewardConfig:
@@ -146,7 +147,7 @@ def run_config(
             swing_fold_keep=preset.swing_fold_keep,
         ),
         perception=preset.perception,
-        depth_from=int(round(preset.num_envs * preset.teacher_ratio)),
+        depth_from=teacher_count(preset.num_envs, preset.teacher_ratio),
         randomization=preset.randomization,
         pushes=preset.pushes,
         terrain_mix=dict(preset.terrain_mix),
