@@ -39,7 +39,13 @@ step() {  # step NAME DONE-FILE COMMAND...: run COMMAND unless DONE-FILE exists;
     "$@" >"$out/$name.log" 2>&1 || { echo "FAILED $name: see $out/$name.log" >&2; exit 1; }
 }
 
-[[ -e $pt ]] || cp "$ckpt" "$pt"
+[[ -f $ckpt ]] || { echo "error: $ckpt: no such checkpoint" >&2; exit 1; }
+if [[ ! -e $pt ]]; then
+    cp "$ckpt" "$pt"
+elif ! cmp -s "$ckpt" "$pt"; then  # a resumed run must not go on with another checkpoint's files
+    echo "error: $pt is another checkpoint than $ckpt; move it, its .onnx and $out away to ship this one" >&2
+    exit 1
+fi
 step export "$onnx" tron1 export-onnx "$pt" -o "$onnx"
 common=(--envs "$envs" --steps "$steps")
 step table1_student "$out/table1_student/results.json" \
