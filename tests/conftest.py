@@ -1,8 +1,9 @@
 """Shared fixtures and helpers: tiny trained checkpoints (one PPO iteration), the CLI in a
-subprocess, a foreign ONNX file."""
+subprocess, a foreign ONNX file, the lab tools of tools/."""
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from dataclasses import replace
@@ -72,3 +73,13 @@ def tiny_ckpt(tmp_path_factory) -> Path:
 def tiny_ckpt_vision(tmp_path_factory) -> Path:
     """Stairs with heightmap and depth (the student's image path)."""
     return make_tiny_checkpoint(tmp_path_factory.mktemp("tiny_vision"), perception=True)
+
+
+def lab_tool(name: str):
+    """The module of ``tools/NAME.py`` (lab tools are scripts, not a package)."""
+    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"tools_{name}", path)
+    tool = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = tool  # a dataclass in the tool looks its module up there
+    spec.loader.exec_module(tool)
+    return tool

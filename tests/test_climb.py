@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.conftest import tron1
+from tests.conftest import lab_tool, tron1
 from tests.test_bad_input import one_error_line
 from tron1cli.config import EnvConfig
 from tron1cli.env.curriculum import RULES, EpisodeEnds, TerrainCurriculum, deal_types
@@ -358,28 +358,15 @@ def test_a_policy_trained_on_a_terrain_mix_is_evaluated_on_one_type(tmp_path):
 def test_gait_by_speed_reports_a_walking_teacher(teacher_stage_ckpt):
     from tron1cli.policy.runtime import load_policy
 
-    tool = _lab_tool("gait_by_speed")
+    tool = lab_tool("gait_by_speed")
     row = tool.gait_at_speed(load_policy(str(teacher_stage_ckpt), actor="teacher"), 3, 0.5, envs=2, steps=5)
     assert set(row) == set(tool.COLUMNS)
     assert 0.0 <= row["survival"] <= 1.0 and row["risers"] >= 0.0
     assert 0.5 < row["base_height_m"] < 1.0  # 5 steps after reset the robot still stands
 
 
-def _lab_tool(name: str):
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"tools_{name}", path)
-    tool = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = tool  # a dataclass in the tool looks its module up there
-    spec.loader.exec_module(tool)
-    return tool
-
-
 def test_falls_by_command_splits_the_whole_exposure(teacher_stage_ckpt):
-    tool = _lab_tool("falls_by_command")
+    tool = lab_tool("falls_by_command")
     rows = tool.falls_by_command(str(teacher_stage_ckpt), 9, envs=3, steps=40)
     assert [r[0] for r in rows] == [label for label, _ in tool.BANDS]
     exposure, falls = sum(r[1] for r in rows), sum(r[2] for r in rows)
@@ -387,7 +374,7 @@ def test_falls_by_command_splits_the_whole_exposure(teacher_stage_ckpt):
 
 
 def test_climb_at_speed_scores_one_fixed_command(teacher_stage_ckpt):
-    tool = _lab_tool("climb_at_speed")
+    tool = lab_tool("climb_at_speed")
     row = tool.climb_at_speed(str(teacher_stage_ckpt), 0.5, 9, envs=3, steps=40)
     assert 0.0 <= row.traverse <= row.success <= 1.0  # a traverse is a success
     assert row.risers >= 0.0 and row.progress is not None  # every env was asked to walk
@@ -395,7 +382,7 @@ def test_climb_at_speed_scores_one_fixed_command(teacher_stage_ckpt):
 
 
 def test_climb_by_term_scores_each_term_alone(teacher_stage_ckpt):
-    tool = _lab_tool("climb_by_term")
+    tool = lab_tool("climb_by_term")
     sets = tool.term_sets()
     labels = [label for label, _, _ in sets]
     assert labels[:4] == ["none", "all", "all + pushes", "pushes"]
@@ -412,7 +399,7 @@ def test_latent_swap_variants_are_the_student_and_the_teacher_at_the_ends(tiny_c
     from tron1cli.evaluation.protocol import EvalSpec, make_env
     from tron1cli.policy.runtime import load_policy
 
-    tool = _lab_tool("latent_swap")
+    tool = lab_tool("latent_swap")
     student, teacher = load_policy(tiny_ckpt_vision), load_policy(tiny_ckpt_vision, "teacher")
     env = make_env(student, EvalSpec("stairs_up", 6, num_envs=3, steps=10))
     try:

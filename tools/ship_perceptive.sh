@@ -8,8 +8,9 @@
 # its teacher; the blind flat policy), the climb probe, Fig. 5 (success by commanded speed per
 # velocity dimension), Fig. 6 (pushes: moderate on the four complex terrains, extreme on flat),
 # deploy-sim of the ONNX on the hardest stairs up with the 30 Hz depth thread (video, rerun
-# recording, JSON) and the campaign's curves. A step whose output is already there is skipped,
-# so a killed run goes on where it stopped; delete a step's folder to redo it.
+# recording, JSON), the campaign's curves and the card's tables in Markdown (OUT/tables.md). A
+# step whose output is already there is skipped, so a killed run goes on where it stopped; delete
+# a step's folder to redo it.
 #
 # Environment: ENVS (Table I and pushes, default 1024, as the paper), FIG_ENVS (Fig. 5, default
 # 256), CLIMB_ENVS (the climb probe, default 128), STEPS (default 500 = 10 s), RUN (the
@@ -79,4 +80,6 @@ step deploy_sim "$out/deploy_sim_stairs.json" \
 step deploy_sim_recorded "$out/deploy_sim_stairs.mp4" \
     "${deploy[@]}" --video "$out/deploy_sim_stairs.mp4" --rerun save="$out/deploy_sim_stairs.rrd"
 step curves "$out/curves.png" tron1 report "$run" --png "$out/curves.png" --x env_steps
-echo "shipped: $pt, $onnx; figures under $out (look at $out/deploy_sim_stairs.mp4 before saying it climbs)"
+python "$(dirname "$0")/card_tables.py" "$out" >/dev/null  # the card's tables, from all of the above
+echo "shipped: $pt, $onnx; figures under $out (the card's tables: $out/tables.md)"
+echo "look at $out/deploy_sim_stairs.mp4 before saying it climbs"

@@ -1,0 +1,34 @@
+"""tools/branch_run.py: a run branched with another teacher share resumes as that run."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.conftest import lab_tool, make_tiny_checkpoint, tron1
+from tron1cli.errors import Tron1Error
+from tron1cli.train.checkpoint import load_training_checkpoint
+from tron1cli.train.runner import RunConfig
+
+
+def test_branch_moves_the_depth_split_and_resumes(tmp_path):
+    tool = lab_tool("branch_run")
+    src = make_tiny_checkpoint(tmp_path / "src", perception=True).parents[1]  # 8 envs, 4 teachers
+    dst = tmp_path / "dst"
+    assert tool.branch(src, dst, 0.25) == 1
+    for cfg in (
+        json.loads((dst / "config.json").read_text()),
+        json.loads(load_training_checkpoint(dst / "checkpoints" / "latest.pt")["config"]),
+    ):
+        assert cfg["learner"]["teacher_ratio"] == 0.25 and cfg["env"]["depth_from"] == 2
+        assert RunConfig.from_dict(cfg).n_teacher == 2  # the split RunConfig checks
+    assert (dst / "metrics.jsonl").read_text() == (src / "metrics.jsonl").read_text()
+    r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(dst))
+    assert r.returncode == 0, r.stderr
+    ck = load_training_checkpoint(dst / "checkpoints" / "latest.pt")
+    assert ck["iteration"] == 2 and ck["learner"]["n_teacher"] == 2
+    with pytest.raises(Tron1Error, match="exists"):
+        tool.branch(src, dst, 0.25)
+    with pytest.raises(Tron1Error, match="no teacher or no student"):
+        tool.branch(src, tmp_path / "none", 0.0)
