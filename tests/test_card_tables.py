@@ -12,6 +12,7 @@ import pytest
 from tron1cli.evaluation.metric_names import METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
 from tron1cli.viz.card_tables import (
+    SE_NOTE,
     deploy_markdown,
     pushes_markdown,
     ship_tables,
@@ -32,7 +33,8 @@ def _eval(results: dict, actor: str = "student", envs: int = 1024) -> dict:
 
 
 def _rows(text: str) -> list[list[str]]:
-    return [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()[2:]]
+    rows = [line for line in text.splitlines() if line.startswith("|")][2:]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in rows]
 
 
 def test_paper_table_names_our_metrics_and_terrains():
@@ -51,6 +53,7 @@ def test_table1_one_policy_shows_the_binomial_standard_error_and_the_paper_row()
     assert rows[1][:3] == ["stairs", "paper (Ours, 3 seeds)", "80.3 ± 4.4"]
     assert rows[1][3] == "-"  # the paper gives no command progress
     assert rows[2][:2] == ["flat", "st (student)"] and len(rows) == 3
+    assert table1_markdown([_eval({"st": {"stairs": per}})]).endswith(SE_NOTE)  # what SE stands for
 
 
 def test_table1_several_policies_show_mean_and_std_and_no_paper_row_when_asked():
