@@ -39,11 +39,11 @@ def branch(src: Path, dst: Path, teacher_ratio: float) -> int:
     if dst.exists():
         raise Tron1Error(f"{dst} exists; branch into a new folder")
     state = load_training_checkpoint(latest_checkpoint(src))
-    n = teacher_count(json.loads(state["config"])["env"]["num_envs"], teacher_ratio)
-    if not 0 < n < json.loads(state["config"])["env"]["num_envs"]:
+    config = branched(json.loads(state["config"]), teacher_ratio)
+    if not 0 < config["env"]["depth_from"] < config["env"]["num_envs"]:
         raise Tron1Error(f"--teacher-ratio {teacher_ratio:g} leaves no teacher or no student")
     checkpoint_dir(dst).mkdir(parents=True)
-    state["config"] = json.dumps(branched(json.loads(state["config"]), teacher_ratio))
+    state["config"] = json.dumps(config)
     save_checkpoint(
         latest_checkpoint(dst), {k: v for k, v in state.items() if k not in ("format", "version")}
     )

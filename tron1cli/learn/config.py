@@ -295,13 +295,13 @@ class LearnerConfig:
         return from_plain(cls, d, "learner config")
 
 
-#: LearnerConfig fields that ``tron1 train`` sets through an option of their own
 def teacher_count(num_envs: int, teacher_ratio: float) -> int:
     """Envs in the teacher group of ``num_envs`` at ``teacher_ratio``: envs ``[0, count)`` are
     teachers, the rest students (whose depth the env renders from there)."""
     return int(round(num_envs * teacher_ratio))
 
 
+#: LearnerConfig fields that ``tron1 train`` sets through an option of their own
 OWN_OPTIONS = {
     "num_steps_per_env": "--steps-per-env",
     "actor_hidden": "--hidden",

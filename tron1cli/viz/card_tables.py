@@ -12,6 +12,7 @@ import json
 import math
 from pathlib import Path
 
+from tron1cli.evaluation.metric_names import PERCENT_METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
 
 #: Table I's columns after method: (header, eval metric, scale, decimals)
@@ -50,7 +51,7 @@ def _cell(m: dict | None, metric: str, scale: float, decimals: int, envs: int) -
     text = f"{scale * m['mean']:.{decimals}f}"
     if m["n"] > 1:
         return f"{text} ± {scale * m['std']:.{decimals}f}"
-    if metric in ("success_rate", "traverse_rate"):
+    if metric in PERCENT_METRICS:
         p = m["mean"]
         return f"{text} (SE {100.0 * math.sqrt(p * (1.0 - p) / envs):.1f})"
     return text
