@@ -32,3 +32,27 @@ def test_branch_moves_the_depth_split_and_resumes(tmp_path):
         tool.branch(src, dst, 0.25)
     with pytest.raises(Tron1Error, match="no teacher or no student"):
         tool.branch(src, tmp_path / "none", 0.0)
+
+
+def test_branch_with_more_layouts_keeps_each_env_on_its_type_and_level(tmp_path):
+    tool = lab_tool("branch_run")
+    src = make_tiny_checkpoint(tmp_path / "src", perception=True).parents[1]  # stairs, 2 layouts a level
+    before = load_training_checkpoint(src / "checkpoints" / "latest.pt")["curriculum"]
+    dst = tmp_path / "dst"
+    assert tool.branch(src, dst, layouts=5) == 1
+    after = load_training_checkpoint(dst / "checkpoints" / "latest.pt")
+    assert json.loads(after["config"])["env"]["terrain_cfg"]["variants_per_level"] == 5
+    assert json.loads((dst / "config.json").read_text())["env"]["terrain_cfg"]["variants_per_level"] == 5
+    old, new = before["tile"].numpy(), after["curriculum"]["tile"].numpy()
+    assert (new // 5 == old // 2).all() and (new % 5 < 5).all()  # same type and level, variant < 5
+    assert (after["curriculum"]["level"] == before["level"]).all()
+    r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(dst))
+    assert r.returncode == 0, r.stderr
+    with pytest.raises(Tron1Error, match="nothing to change"):
+        tool.branch(src, tmp_path / "none")
+
+
+def test_relaid_tiles_maps_hand_computed_indices():
+    tool = lab_tool("branch_run")
+    tiles = tool.relaid_tiles([0, 1, 2, 3, 19], old=2, new=4, seed=0)
+    assert list(tiles // 4) == [0, 0, 1, 1, 9]  # (type, level) groups of 2 -> groups of 4

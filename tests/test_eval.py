@@ -295,6 +295,7 @@ def test_push_test_cli_json(tiny_ckpt, tmp_path):
         (["eval", "{ckpt}", "--speeds", "1.25"], 2, "outside the policy's training command range [-1, 1]"),
         (["push-test", "{ckpt}", "--envs", "3"], 2, "greater than or equal to 14"),
         (["eval", "{ckpt}", "--gait-freq", "1"], 2, "--gait-freq: gait frequency 1 Hz lies outside"),
+        (["eval", "{ckpt}", "--layouts", "0"], 2, "greater than or equal to 1"),
     ],
 )
 def test_bad_input_one_line(tiny_ckpt, args, code, text):
@@ -540,6 +541,19 @@ def test_command_progress_in_heading_mode_runs_along_the_heading(tiny_ckpt):
     res = run_batch(pol, spec, before_step=before_step, after_step=after_step)
     assert not res.fell.any()
     assert res.metrics["command_progress"] == pytest.approx(sums["along"] / sums["asked"], abs=1e-9)
+
+
+def test_eval_envs_stand_on_many_layouts_of_the_level_under_test(tiny_ckpt):
+    env = make_env(load_policy(tiny_ckpt), EvalSpec("discrete", -1, num_envs=24, steps=1, layouts=6))
+    assert env.bank.cfg.variants_per_level == 6
+    tiles = env.curriculum.tile
+    assert set(env.bank.level[tiles]) == {9} and len(set(tiles)) > 2
+    layouts = {k: env.bank.heights[k] for k in set(tiles)}
+    assert all(  # every layout its own blocks
+        not np.array_equal(layouts[a], layouts[b]) for a in layouts for b in layouts if a < b
+    )
+    with pytest.raises(ValueError, match="layouts must be >= 1"):
+        EvalSpec("discrete", layouts=0)
 
 
 def test_env_past_the_training_tile_is_still_on_the_stairs_level(tiny_ckpt):

@@ -34,7 +34,7 @@ from tron1cli.cli.common import (
     terrain_help,
 )
 from tron1cli.errors import Tron1Error
-from tron1cli.evaluation.metric_names import METRICS, PERCENT_METRICS
+from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, METRICS, PERCENT_METRICS
 from tron1cli.fileio import atomic_write, write_file
 from tron1cli.train.layout import policy_label
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
@@ -210,6 +210,13 @@ def eval_cmd(
         help="Metrics to show (default all): " + ", ".join(METRICS),
     ),
     seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of the eval envs."),
+    layouts: int = typer.Option(
+        EVAL_LAYOUTS,
+        "--layouts",
+        min=1,
+        help="Random terrain layouts drawn at the level under test, one per env at random (discrete "
+        "and rough; training draws 2 a level).",
+    ),
     actor: str | None = typer.Option(
         None,
         "--actor",
@@ -325,7 +332,15 @@ def eval_cmd(
             for label, pols in loaded.items():
                 for t in terrains:
                     spec = EvalSpec(
-                        t, level, envs, steps, randomize, seed=seed, gait_freq_hz=gait_freq, backend=backend
+                        t,
+                        level,
+                        envs,
+                        steps,
+                        randomize,
+                        seed=seed,
+                        gait_freq_hz=gait_freq,
+                        backend=backend,
+                        layouts=layouts,
                     )
                     where = f"{label} on {t}, " + ("hardest level" if level == -1 else f"level {level}")
                     runs = []
@@ -373,6 +388,7 @@ def eval_cmd(
             "randomize": randomize,
             "randomization_terms": rand_terms,
             "seed": seed,
+            "layouts": layouts,
             "actor": actor,
             "gait_freq_hz": gait_freq,
             "eval_tile_m": first["tile_m"],
@@ -406,7 +422,8 @@ def eval_cmd(
         caption=f"{actor}s, level {level}, {envs} envs x {steps} steps, "
         f"randomisation {rand_word}, "
         + ("" if gait_freq is None else f"gait {gait_freq:g} Hz, ")
-        + f"full window ({first['tile_m']:g} m tiles); mean ± std over the policies of a method; "
+        + f"full window ({first['tile_m']:g} m tiles, {layouts} layouts), seed {seed}; "
+        "mean ± std over the policies of a method; "
         "success and traverse in %",
     )
     table.add_column("method")

@@ -56,7 +56,7 @@ from tron1cli.env.math3d import roll_pitch, rotate_z, yaw_of
 from tron1cli.env.randomization import PushConfig, RandomizationConfig
 from tron1cli.env.terminations import FALL_CAUSES
 from tron1cli.env.terrain import TERRAIN_GROUPS, TERRAIN_TYPES, TerrainConfig
-from tron1cli.evaluation.metric_names import METRICS
+from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, METRICS
 from tron1cli.policy.contract import check_matches_env
 
 if TYPE_CHECKING:  # torch stays out of the CLI's option checks
@@ -174,7 +174,8 @@ class EvalSpec:
     window (Fig. 5); otherwise the training command distribution; pushes: random pushes during the
     window (push tests set their own wrench instead); gait_freq_hz: hold the gait clock at this
     frequency (Hz, in the policy's trained range) instead of drawing it with each command;
-    backend: the physics engine (tron1cli.env.physics.BACKENDS).
+    backend: the physics engine (tron1cli.env.physics.BACKENDS); layouts: random tiles drawn for
+    the level under test, one per env at random (:data:`EVAL_LAYOUTS`).
     """
 
     terrain: str = "flat"
@@ -188,10 +189,13 @@ class EvalSpec:
     speed_dim: str = "vx"
     gait_freq_hz: float | None = None
     backend: str = "mujoco"
+    layouts: int = EVAL_LAYOUTS
 
     def __post_init__(self) -> None:
         if self.num_envs < 1 or self.steps < 1:
             raise ValueError("envs and steps must be positive")
+        if self.layouts < 1:
+            raise ValueError(f"layouts must be >= 1, got {self.layouts}")
         check_speed_form(self.speed_dim, self.speed)
 
     def commands(self, trained: CommandConfig) -> CommandConfig:
@@ -231,7 +235,10 @@ def make_env(policy: Policy, spec: EvalSpec) -> Tron1Env:
         pushes=spec.pushes or PushConfig(),
         commands=commands,
         gait=base.gait if spec.gait_freq_hz is None else base.gait.fixed(spec.gait_freq_hz),
-        terrain_cfg=eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
+        terrain_cfg=replace(
+            eval_terrain_config(base.terrain_cfg, window_s, top_speed(commands)),
+            variants_per_level=spec.layouts,
+        ),
         termination=base.termination.judged((spec.steps + 10) * base.policy_dt),
     )
     env = Tron1Env(cfg, policy.run_cfg.reward, backend=spec.backend)
