@@ -126,3 +126,18 @@ def test_card_tables_tool_writes_tables_md_and_fails_in_one_line(tmp_path):
     assert (tmp_path / "tables.md").read_text() == ok.stdout
     bad = subprocess.run([*tool, str(tmp_path / "nope")], capture_output=True, text=True)
     assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "no such folder" in bad.stderr
+
+
+def test_cells_hand_computed():
+    from tron1cli.viz.cells import mean_std, speed_cell
+
+    one = {"mean": 0.551, "std": 0.0, "n": 1}
+    two = {"mean": 0.5, "std": 0.025, "n": 2}
+    assert (
+        mean_std(two, True) == "50.0 ± 2.5"
+        and mean_std({"mean": 0.2346, "std": 0.01, "n": 2}, False) == "0.235 ± 0.010"
+    )
+    assert mean_std({"mean": None, "std": None, "n": 0}, True) == "-"
+    assert speed_cell(one, {"mean": 0.624, "std": 0.0, "n": 1}) == "55.1 / 0.62"
+    assert speed_cell(two, {"mean": 0.6, "std": 0.05, "n": 2}) == "50.0 ± 2.5 / 0.600 ± 0.050"
+    assert speed_cell(one, None) == "55.1 / -" and speed_cell(None, None) == "-"

@@ -37,6 +37,7 @@ from tron1cli.errors import Tron1Error
 from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, METRICS, PERCENT_METRICS
 from tron1cli.fileio import atomic_write, write_file
 from tron1cli.train.layout import policy_label
+from tron1cli.viz.cells import mean_std, speed_cell
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 RERUN_FORMS = "spawn, save=FILE.rrd, connect[=URL] or off."
@@ -151,22 +152,6 @@ def check_levels(loaded: dict, level: int) -> None:
                 check_level(level, p.run_cfg.env.terrain_cfg.num_levels)
     except ValueError as e:
         fail(str(e), 2)
-
-
-def _fmt(m: dict, pct: bool) -> str:
-    if m["mean"] is None:
-        return "-"
-    k = 100.0 if pct else 1.0
-    return f"{k * m['mean']:.1f} ± {k * m['std']:.1f}" if pct else f"{m['mean']:.3f} ± {m['std']:.3f}"
-
-
-def _speed_cell(success: dict, progress: dict) -> str:
-    """One commanded speed's cell, success % and command progress ("96.1 / 0.07"), with stds
-    where a method has several policies."""
-    if success["n"] > 1:
-        return f"{_fmt(success, True)} / {_fmt(progress, False)}"
-    prog = "-" if progress["mean"] is None else f"{progress['mean']:.2f}"
-    return f"{100.0 * success['mean']:.1f} / {prog}"
 
 
 def eval_cmd(
@@ -432,7 +417,7 @@ def eval_cmd(
         table.add_column(t, justify="right")
     for label in loaded:
         for i, m in enumerate(shown):
-            cells = (_fmt(results[label][t][m], m in PERCENT_METRICS) for t in terrains)
+            cells = (mean_std(results[label][t][m], m in PERCENT_METRICS) for t in terrains)
             table.add_row(label if i == 0 else "", m, *cells, end_section=i == len(shown) - 1)
     out.print(table)
     for dim, values in plan.items():
@@ -447,7 +432,7 @@ def eval_cmd(
         for label in loaded:
             for t in terrains:
                 cells = (
-                    _speed_cell(by_speed[dim][label][t][v], progress_by_speed[dim][label][t][v])
+                    speed_cell(by_speed[dim][label][t][v], progress_by_speed[dim][label][t][v])
                     for v in values
                 )
                 table.add_row(f"{label} / {t}", *cells)
@@ -826,8 +811,8 @@ def push_test(
     for label in loaded:
         table.add_column(label, justify="right")
     for k in PUSH_TYPES:
-        table.add_row(k, *(_fmt(survival[label][k], True) for label in loaded))
-    table.add_row("[bold]overall (pushed)", *(_fmt(overall[label], True) for label in loaded))
+        table.add_row(k, *(mean_std(survival[label][k], True) for label in loaded))
+    table.add_row("[bold]overall (pushed)", *(mean_std(overall[label], True) for label in loaded))
     out.print(table)
     if out_dir is not None:
         out.print(f"results written to {out_dir}/" + (" (replacing the earlier ones)" if replaced else ""))

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from tron1cli.evaluation.metric_names import PERCENT_METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
+from tron1cli.viz.cells import speed_cell
 
 #: Table I's columns after method: (header, eval metric, scale, decimals)
 _TABLE_I_COLUMNS = (
@@ -118,13 +119,6 @@ def climb_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _speed_cell(success: dict | None, progress: dict | None) -> str:
-    if success is None:
-        return "-"
-    prog = "-" if progress is None or progress["mean"] is None else f"{progress['mean']:.2f}"
-    return f"{100.0 * success['mean']:.1f} / {prog}"
-
-
 def speeds_markdown(reports: list[dict]) -> str:
     """Fig. 5: success % / command progress by commanded speed, one table per velocity dimension,
     one row per terrain and method, from eval reports run with ``--speeds``."""
@@ -138,7 +132,7 @@ def speeds_markdown(reports: list[dict]) -> str:
             for label, per in sweep["results"].items():
                 for t, by_v in per.items():
                     vs = speeds.setdefault(dim, list(by_v))
-                    cells = [_speed_cell(by_v.get(v), progress[label][t].get(v)) for v in vs]
+                    cells = [speed_cell(by_v.get(v), progress[label][t].get(v)) for v in vs]
                     by_dim.setdefault(dim, []).append(_row([t, label, *cells]))
     parts = []
     for dim, rows in by_dim.items():
