@@ -1,4 +1,5 @@
-"""tools/branch_run.py: a run branched with another teacher share resumes as that run."""
+"""tools/branch_run.py: a run branched with another teacher share and more terrain layouts a
+level resumes as that run."""
 
 from __future__ import annotations
 
@@ -12,17 +13,20 @@ from tron1cli.train.checkpoint import load_training_checkpoint
 from tron1cli.train.runner import RunConfig
 
 
-def test_branch_moves_the_depth_split_and_resumes(tmp_path):
+def test_branch_moves_the_depth_split_and_the_layouts_and_resumes(tmp_path):
     tool = lab_tool("branch_run")
     src = make_tiny_checkpoint(tmp_path / "src", perception=True).parents[1]  # 8 envs, 4 teachers
+    before = load_training_checkpoint(src / "checkpoints" / "latest.pt")["curriculum"]
     dst = tmp_path / "dst"
-    assert tool.branch(src, dst, 0.25) == 1
-    for cfg in (
-        json.loads((dst / "config.json").read_text()),
-        json.loads(load_training_checkpoint(dst / "checkpoints" / "latest.pt")["config"]),
-    ):
+    assert tool.branch(src, dst, 0.25, layouts=5) == 1
+    after = load_training_checkpoint(dst / "checkpoints" / "latest.pt")
+    for cfg in (json.loads((dst / "config.json").read_text()), json.loads(after["config"])):
         assert cfg["learner"]["teacher_ratio"] == 0.25 and cfg["env"]["depth_from"] == 2
         assert RunConfig.from_dict(cfg).n_teacher == 2  # the split RunConfig checks
+        assert cfg["env"]["terrain_cfg"]["variants_per_level"] == 5
+    old, new = before["tile"].numpy(), after["curriculum"]["tile"].numpy()
+    assert (new // 5 == old // 2).all()  # each env on its own type and level, 2 -> 5 layouts
+    assert (after["curriculum"]["level"] == before["level"]).all()
     assert (dst / "metrics.jsonl").read_text() == (src / "metrics.jsonl").read_text()
     r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(dst))
     assert r.returncode == 0, r.stderr
@@ -32,22 +36,6 @@ def test_branch_moves_the_depth_split_and_resumes(tmp_path):
         tool.branch(src, dst, 0.25)
     with pytest.raises(Tron1Error, match="no teacher or no student"):
         tool.branch(src, tmp_path / "none", 0.0)
-
-
-def test_branch_with_more_layouts_keeps_each_env_on_its_type_and_level(tmp_path):
-    tool = lab_tool("branch_run")
-    src = make_tiny_checkpoint(tmp_path / "src", perception=True).parents[1]  # stairs, 2 layouts a level
-    before = load_training_checkpoint(src / "checkpoints" / "latest.pt")["curriculum"]
-    dst = tmp_path / "dst"
-    assert tool.branch(src, dst, layouts=5) == 1
-    after = load_training_checkpoint(dst / "checkpoints" / "latest.pt")
-    assert json.loads(after["config"])["env"]["terrain_cfg"]["variants_per_level"] == 5
-    assert json.loads((dst / "config.json").read_text())["env"]["terrain_cfg"]["variants_per_level"] == 5
-    old, new = before["tile"].numpy(), after["curriculum"]["tile"].numpy()
-    assert (new // 5 == old // 2).all() and (new % 5 < 5).all()  # same type and level, variant < 5
-    assert (after["curriculum"]["level"] == before["level"]).all()
-    r = tron1("train", "--resume", "--iterations", "2", "--run-dir", str(dst))
-    assert r.returncode == 0, r.stderr
     with pytest.raises(Tron1Error, match="nothing to change"):
         tool.branch(src, tmp_path / "none")
 
