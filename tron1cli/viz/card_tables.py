@@ -28,9 +28,10 @@ _TABLE_I_COLUMNS = (
 )
 #: what a standard error in Table I stands for, printed under it
 SE_NOTE = (
-    "SE: the binomial standard error over the envs, taken as independent. The envs of one eval seed "
-    "share its terrain layout, so a figure can move by more between seeds (2026-12-07: one student "
-    "checkpoint succeeded 58.9 % on discrete with seed 0 and 52.9 % with seed 1, 1024 envs each)."
+    "SE: the binomial standard error over the envs, taken as independent. An eval batch spreads its "
+    "envs over 16 random terrain layouts of the level (`--layouts`); with the training bank's 2, one "
+    "student checkpoint succeeded 58.9 % on discrete with seed 0 and 52.9 % with seed 1, while on 16 "
+    "layouts another gave 64.9 and 64.3 % (1024 envs each, 2026-12-07)."
 )
 #: the paper's terrain order; other terrains an eval holds follow it
 _TERRAINS = tuple(PAPER_TABLE_I)
