@@ -13,6 +13,7 @@ from tron1cli.train.checkpoint import load_training_checkpoint
 from tron1cli.train.runner import RunConfig
 
 
+@pytest.mark.slow  # trains a tiny run and resumes it through the CLI (about 25 s on 2 cores)
 def test_branch_moves_the_depth_split_and_the_layouts_and_resumes(tmp_path):
     tool = lab_tool("branch_run")
     src = make_tiny_checkpoint(tmp_path / "src", perception=True).parents[1]  # 8 envs, 4 teachers
@@ -38,6 +39,19 @@ def test_branch_moves_the_depth_split_and_the_layouts_and_resumes(tmp_path):
         tool.branch(src, tmp_path / "none", 0.0)
     with pytest.raises(Tron1Error, match="nothing to change"):
         tool.branch(src, tmp_path / "none")
+
+
+def test_branched_configuration_hand_computed():
+    tool = lab_tool("branch_run")
+    config = {
+        "learner": {"teacher_ratio": 0.5},
+        "env": {"num_envs": 8, "terrain_cfg": {"variants_per_level": 2}},
+    }
+    out = tool.branched(config, 0.25, layouts=5)
+    assert out["learner"]["teacher_ratio"] == 0.25 and out["env"]["depth_from"] == 2
+    assert out["env"]["terrain_cfg"]["variants_per_level"] == 5
+    assert config["learner"]["teacher_ratio"] == 0.5  # the input is left as it was
+    assert tool.branched(config, layouts=3)["learner"] == config["learner"]
 
 
 def test_relaid_tiles_maps_hand_computed_indices():
