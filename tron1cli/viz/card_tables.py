@@ -12,7 +12,7 @@ import json
 import math
 from pathlib import Path
 
-from tron1cli.evaluation.metric_names import PERCENT_METRICS
+from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, PERCENT_METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
 from tron1cli.viz.cells import speed_cell
 
@@ -28,10 +28,10 @@ _TABLE_I_COLUMNS = (
 )
 #: what a standard error in Table I stands for, printed under it
 SE_NOTE = (
-    "SE: the binomial standard error over the envs, taken as independent. An eval batch spreads its "
-    "envs over 16 random terrain layouts of the level (`--layouts`); with the training bank's 2, one "
-    "student checkpoint succeeded 58.9 % on discrete with seed 0 and 52.9 % with seed 1, while on 16 "
-    "layouts another gave 64.9 and 64.3 % (1024 envs each, 2026-12-07)."
+    "SE: the binomial standard error over the envs, taken as independent. An eval batch spreads "
+    f"its envs over {EVAL_LAYOUTS} random terrain layouts of the level (`--layouts`); with the "
+    "training bank's 2, one student checkpoint succeeded 58.9 % on discrete with seed 0 and 52.9 % "
+    "with seed 1, while on 16 layouts another gave 64.9 and 64.3 % (1024 envs each, 2026-12-07)."
 )
 #: the paper's terrain order; other terrains an eval holds follow it
 _TERRAINS = tuple(PAPER_TABLE_I)
