@@ -104,6 +104,22 @@ def test_deploy_table():
     assert "| survived | yes (duration) |" in text and "| depth rate (Hz) | 30.0 |" in text
 
 
+def test_deploy_table_of_many_runs():
+    """--runs N's JSON: the survival with its interval, each fall, and the worst pipeline figures."""
+    from tron1cli.deploy.runs import runs_summary
+
+    fell = {**_deploy(), "seed": 3, "survived": False, "ended": "fell", "fell_by": "base", "duration_s": 3.5}
+    reps = [{**_deploy(), "seed": 2, "fell_by": None, "depth_age_ms_p99": 40.0}, fell]
+    for r in reps:
+        r["terrain"] = "stairs_up"
+    text = deploy_markdown({"summary": runs_summary(reps), "runs": reps})
+    assert "| runs | x.onnx, stairs_up level 9, 2 runs of 10 s (seeds 2-3) |" in text
+    # Wilson, 1 of 2: centre (0.5 + 0.9604) / 2.9208 = 0.5, half 1.96 * sqrt(0.125 + 0.2401) / 2.9208
+    assert "| survived (95 % Wilson interval) | 1 of 2 (50%; 9%-91%) |" in text
+    assert "| falls (seed, time, cause) | seed 3 at 3.50 s (base) |" in text
+    assert "| depth frame age p99, worst run (ms of sim time) | 40.0 |" in text
+
+
 def test_ship_tables_names_what_is_not_run_yet_and_refuses_a_corrupt_file(tmp_path):
     (tmp_path / "table1_student").mkdir()
     per = {"success_rate": _m(0.5)}

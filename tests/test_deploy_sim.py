@@ -242,6 +242,55 @@ def _tampered_layout(src, path):
     return path
 
 
+def test_runs_report_survival_over_consecutive_seeds(tiny_ckpt, monkeypatch, capsys):
+    """--runs 3 --seed 4 runs seeds 4, 5 and 6, each the run --seed S alone gives; the summary
+    counts what fell and puts the share in its Wilson interval."""
+    base = (str(tiny_ckpt), "--terrain", "rough", "--duration", "0.6", "--json")
+    code, out, _ = run_cli(monkeypatch, capsys, *base, "--runs", "3", "--seed", "4")
+    assert code == 0
+    res = json.loads(out)
+    sm, reps = res["summary"], res["runs"]
+    assert [r["seed"] for r in reps] == [4, 5, 6] and sm["seeds"] == [4, 6] and sm["runs"] == 3
+    alone = json.loads(run_cli(monkeypatch, capsys, *base, "--seed", "5")[1])
+    for key in ("survived", "ended", "policy_steps", "vel_tracking_error", "com_error_m"):
+        assert reps[1][key] == alone[key]
+    fell = [r for r in reps if not r["survived"]]
+    assert sm["survived"] == 3 - len(fell) and sm["survival"] == pytest.approx(sm["survived"] / 3)
+    assert [f["seed"] for f in sm["falls"]] == [r["seed"] for r in fell]
+    lo, hi = sm["survival_ci95"]
+    assert 0.0 <= lo <= sm["survival"] <= hi <= 1.0
+    assert sm["simulated_s"] == pytest.approx(sum(r["duration_s"] for r in reps))
+    code, out, _ = run_cli(monkeypatch, capsys, *base[:-1], "--runs", "2")
+    assert code == 0 and "survived" in out and " of 2 (" in out
+
+
+def test_runs_summary_by_hand():
+    from tron1cli.deploy.runs import runs_summary
+
+    def rep(seed, survived, t, rtf, rate):
+        return {
+            "policy": "p.onnx", "terrain": "stairs_up", "terrain_type": "stairs_up", "level": 9,
+            "requested_duration_s": 10.0, "seed": seed, "survived": survived, "duration_s": t,
+            "ended": "duration" if survived else "fell", "fell_by": None if survived else "base",
+            "vel_tracking_error": 0.2, "reconstruction_error_cm": None, "depth_rate_hz": rate,
+            "depth_dropped": 1, "depth_age_ms_p99": rate, "policy_ms_p99": 0.5, "realtime_factor": rtf,
+        }  # fmt: skip
+
+    sm = runs_summary(
+        [rep(0, False, 3.34, 6.0, 30.0), rep(1, True, 10.0, 8.0, 29.9), rep(2, True, 10.0, 7.0, 30.1)]
+    )
+    assert sm["survived"] == 2 and sm["falls"] == [
+        {"seed": 0, "t_s": 3.34, "ended": "fell", "fell_by": "base"}
+    ]
+    # Wilson, 2 of 3, z = 1.96: centre (2/3 + 0.6403) / 2.2805 = 0.5731, half 0.3654
+    assert sm["survival_ci95"] == pytest.approx([0.2077, 0.9385], abs=1e-4)
+    assert (sm["realtime_factor_min"], sm["realtime_factor_median"]) == (6.0, 7.0)
+    assert (sm["depth_rate_hz_min"], sm["depth_rate_hz_max"], sm["depth_dropped"]) == (29.9, 30.1, 3)
+    assert sm["reconstruction_error_cm_mean"] is None and sm["simulated_s"] == pytest.approx(23.34)
+    with pytest.raises(ValueError, match="no runs"):
+        runs_summary([])
+
+
 @pytest.mark.parametrize(
     "make,text",
     [
@@ -267,6 +316,10 @@ def test_bad_policy_file_exits_1_with_one_line(make, text, vision_onnx, tmp_path
         (["--duration", "0"], "--duration"),
         (["--gait-freq", "3"], "--gait-freq: gait frequency 3 Hz lies outside the trained range 1.5-2.5 Hz"),
         (["--gait-freq", "nan"], "not a finite number"),
+        (["--runs", "0"], "--runs"),
+        (["--runs", "2", "--video", "x.mp4"], "--video show one run: give --runs 1"),
+        (["--runs", "2", "--rerun", "save=x.rrd", "--viewer"], "--rerun and --viewer show one run"),
+        (["--runs", "2", "--seed", str(2**32 - 1)], "runs past the largest seed"),
     ],
 )
 def test_bad_option_exits_2(args, text, tiny_ckpt, monkeypatch, capsys):

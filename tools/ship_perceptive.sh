@@ -16,7 +16,8 @@
 # 256), CLIMB_ENVS (the climb probe, default 128), STEPS (default 500 = 10 s), SEED (of every
 # evaluation, default 1: the checkpoint was picked by evaluations with seed 0, so the shipped
 # figures come from envs the choice never saw), RUN (the campaign's run directory, for the
-# curves), SHIP_TO (the shipped files without extension, default policies/tron1_perceptive). On
+# curves), DEPLOY_RUNS (deploy-sim runs on the hardest stairs, default 50), SHIP_TO (the shipped
+# files without extension, default policies/tron1_perceptive). On
 # two cores the whole run should take about 90 minutes (estimated from single evaluations: the
 # student on 1024 envs x 500 steps takes about 4 minutes a terrain); nothing else should run
 # beside it.
@@ -77,11 +78,13 @@ for terrain in stairs slopes discrete rough; do
 done
 step push_extreme_flat "$out/push_extreme_flat/results.json" \
     tron1 push-test "$onnx" --extreme --terrain flat --envs "$envs" --seed "$seed" --out "$out/push_extreme_flat"
-# the figures (real-time factor, depth rate) from a plain run; the video and the rerun recording
-# from a second, since recording slows the loop
+# the figures (survival, real-time factor, depth rate) from DEPLOY_RUNS plain runs, seeds 0 (the
+# default run's) upward: one run is an anecdote; the video and the rerun recording from the
+# default run again, since recording slows the loop
 deploy=(tron1 deploy-sim "$onnx" --terrain stairs_up --level 9 --cmd 0.5,0,0 --duration 10)
 step deploy_sim "$out/deploy_sim_stairs.json" \
-    bash -c '"$@" --json > "$0.tmp" && mv "$0.tmp" "$0"' "$out/deploy_sim_stairs.json" "${deploy[@]}"
+    bash -c '"$@" --json > "$0.tmp" && mv "$0.tmp" "$0"' "$out/deploy_sim_stairs.json" "${deploy[@]}" \
+    --runs "${DEPLOY_RUNS:-50}"
 step deploy_sim_recorded "$out/deploy_sim_stairs.mp4" \
     "${deploy[@]}" --video "$out/deploy_sim_stairs.mp4" --rerun save="$out/deploy_sim_stairs.rrd"
 step curves "$out/curves.png" tron1 report "$run" --png "$out/curves.png" --x env_steps

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -25,6 +26,7 @@ from tron1cli.cli.common import (
     rerun_file,
     terrain_help,
 )
+from tron1cli.deploy.runs import runs_summary, summary_rows, summary_title
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
 
 
@@ -55,6 +57,14 @@ def deploy_sim(
     ),
     seed: int = typer.Option(
         0, "--seed", min=0, max=SEED_MAX, help="Seed of the env, the terrain and the sensor noise."
+    ),
+    runs: int = typer.Option(
+        1,
+        "--runs",
+        min=1,
+        max=10_000,
+        help="Runs with seeds SEED, SEED+1, ...: the table gives their survival with a 95 % interval "
+        "(one run is an anecdote: a policy that falls in 1 run of 20 falls on some seed).",
     ),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Proprioceptive and depth sensor noise."),
     depth_latency_ms: float = typer.Option(
@@ -92,7 +102,7 @@ def deploy_sim(
     age and render time, and the real-time factor (simulated seconds per wall second).
     """
     check_inputs([policy])
-    from tron1cli.deploy.pipeline import PUSHES, DeployConfig, DeploySim, check_display
+    from tron1cli.deploy.pipeline import PUSHES, DeployConfig, check_display
     from tron1cli.deploy.schedule import CommandSchedule, parse_cmd
     from tron1cli.env.terrain import resolve_terrain
     from tron1cli.policy.runtime import load_policy
@@ -108,6 +118,12 @@ def deploy_sim(
         else:
             schedule = CommandSchedule.constant(parse_cmd(cmd if cmd is not None else "0.5,0,0"))
         target = parse_rerun_option(rerun)
+        if runs > 1:
+            one_run = [o for o, on in (("--video", video), ("--rerun", target), ("--viewer", viewer)) if on]
+            if one_run:
+                raise ValueError(f"{' and '.join(one_run)} show one run: give --runs 1 with them")
+            if seed + runs - 1 > SEED_MAX:
+                raise ValueError(f"--seed {seed} with --runs {runs} runs past the largest seed {SEED_MAX}")
     except ValueError as e:
         fail(str(e), 2)
     check_outputs(files=[rerun_file(target)], inputs=[x for x in (policy, cmd_file) if x is not None])
@@ -133,54 +149,74 @@ def deploy_sim(
     )
     pol = load_policy(policy)
     stream = open_stream(target, recording_name=f"tron1 deploy-sim {policy.name}")
-    with err.status("setting up the env and the depth thread..."):
-        take = None
-        if recorder is not None:
-            take = recorder.take(
-                [0], caption=f"{policy.name} on {terrain} level {level}, cmd {cmd or '0.5,0,0'}"
-            )
-        sim = DeploySim(pol, cfg, stream, take)
+    steps = int(round(duration * 50))
     progress = Progress(
         TextColumn("[bold]deploy-sim"),
         MofNCompleteColumn(),
         BarColumn(bar_width=24),
-        TextColumn("policy steps"),
+        TextColumn("policy steps  {task.fields[tally]}"),
         TimeElapsedColumn(),
         console=err,
         transient=True,
         disable=as_json or not err.is_terminal,
     )
     done = [0]
+    reps: list[dict] = []
     try:
         with progress:
-            task = progress.add_task("run", total=int(round(duration * 50)))
+            task = progress.add_task("run", total=steps * runs, tally="setting up the env and depth thread")
 
             def on_step(k: int, total: int) -> None:
-                done[0] = k
+                done[0] += 1
+                if k == 1 and runs == 1:
+                    progress.update(task, tally="")
                 if k % 25 == 0 or k == total:
-                    progress.update(task, completed=k, total=total)
+                    progress.update(task, completed=len(reps) * steps + k)
 
-            rep = sim.run(on_step)
+            for i in range(runs):
+                reps.append(_run(pol, replace(cfg, seed=seed + i), stream, recorder, cmd, on_step))
+                fell = sum(not r["survived"] for r in reps)
+                tally = f"{len(reps)} of {runs} runs, {fell} fell" if runs > 1 else ""
+                progress.update(task, completed=len(reps) * steps, tally=tally)
     except KeyboardInterrupt:
         kept = "no results written" + (", no video" if recorder is not None else "")
         if target is not None and target.kind == "save":
             kept += f"; the rerun recording {target.arg} holds what was streamed"
         fail(f"deploy-sim interrupted after {done[0]:,} policy steps: {kept}", 130)
     finally:
-        sim.close()
         if stream is not None:
             stream.close()
-    if rep["unstable"]:
-        err.print(
-            "[bold yellow]warning:[/] the simulation went unstable (NaN, runaway velocity or a MuJoCo "
-            f"auto-reset) at t = {rep['duration_s']:.2f} s; the run stopped there",
-            highlight=False,
-        )
+    for rep in reps:
+        if rep["unstable"]:
+            err.print(
+                "[bold yellow]warning:[/] the simulation went unstable (NaN, runaway velocity or a "
+                f"MuJoCo auto-reset) at t = {rep['duration_s']:.2f} s"
+                + (f" of seed {rep['seed']}'s run" if runs > 1 else "")
+                + "; the run stopped there",
+                highlight=False,
+            )
+    result = reps[0] if runs == 1 else {"summary": runs_summary(reps), "runs": reps}
     if as_json:
-        print_json(rep)
+        print_json(result)
     else:
-        out.print(_table(rep))
+        out.print(_table(result) if runs == 1 else _runs_table(result["summary"]))
     render_video(recorder)
+
+
+def _run(pol, cfg, stream, recorder, cmd: str | None, on_step) -> dict:
+    """One deploy-sim run of ``pol`` under ``cfg``: its report (see DeploySim._report)."""
+    from tron1cli.deploy.pipeline import DeploySim
+
+    take = None
+    if recorder is not None:
+        take = recorder.take(
+            [0], caption=f"{pol.path.name} on {cfg.terrain} level {cfg.level}, cmd {cmd or '0.5,0,0'}"
+        )
+    sim = DeploySim(pol, cfg, stream, take)
+    try:
+        return sim.run(on_step)
+    finally:
+        sim.close()
 
 
 def _table(rep: dict) -> Table:
@@ -232,5 +268,15 @@ def _table(rep: dict) -> Table:
             ("depth render hidden behind the control loop", _f(rep["depth_hidden_share"], ".0%")),
         ]
     for name, value in rows:
+        t.add_row(name, value)
+    return t
+
+
+def _runs_table(sm: dict) -> Table:
+    """The survival and the pipeline's figures over ``--runs`` runs (see runs_summary)."""
+    t = Table(title=f"tron1 deploy-sim: {summary_title(sm)}")
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    for name, value in summary_rows(sm):
         t.add_row(name, value)
     return t

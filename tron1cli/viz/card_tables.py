@@ -12,6 +12,7 @@ import json
 import math
 from pathlib import Path
 
+from tron1cli.deploy.runs import summary_rows, summary_title
 from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, PERCENT_METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
 from tron1cli.viz.cells import speed_cell
@@ -160,7 +161,12 @@ def pushes_markdown(reports: list[dict]) -> str:
 
 
 def deploy_markdown(rep: dict) -> str:
-    """deploy-sim's figures (``tron1 deploy-sim --json``) as a two-column table."""
+    """deploy-sim's figures (``tron1 deploy-sim --json``, one run or ``--runs N``) as a two-column
+    table."""
+    if "summary" in rep:
+        sm = rep["summary"]
+        rows = [("runs", summary_title(sm)), *summary_rows(sm)]
+        return _header(["figure", "value"]) + "\n" + "\n".join(_row(r) for r in rows)
 
     def f(v, spec=".3f"):
         return "-" if v is None else format(v, spec)
