@@ -264,6 +264,26 @@ def test_runs_report_survival_over_consecutive_seeds(tiny_ckpt, monkeypatch, cap
     assert code == 0 and "survived" in out and " of 2 (" in out
 
 
+def test_runs_interrupted_report_the_finished_ones(tiny_ckpt, monkeypatch, capsys):
+    """Ctrl-C in the third of five runs: the two finished are reported, then exit 130."""
+    calls = [0]
+    run = DeploySim.run
+
+    def interrupt_third(self, on_step=None):
+        calls[0] += 1
+        if calls[0] == 3:
+            raise KeyboardInterrupt
+        return run(self, on_step)
+
+    monkeypatch.setattr(DeploySim, "run", interrupt_third)
+    code, out, err = run_cli(
+        monkeypatch, capsys, str(tiny_ckpt), "--duration", "0.2", "--runs", "5", "--json"
+    )
+    assert code == 130 and "interrupted in run 3 of 5: the figures are the 2 finished" in err
+    res = json.loads(out)
+    assert res["summary"]["runs"] == 2 and [r["seed"] for r in res["runs"]] == [0, 1]
+
+
 def test_runs_summary_by_hand():
     from tron1cli.deploy.runs import runs_summary
 

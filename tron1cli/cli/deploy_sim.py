@@ -162,6 +162,7 @@ def deploy_sim(
     )
     done = [0]
     reps: list[dict] = []
+    interrupted = False
     try:
         with progress:
             task = progress.add_task("run", total=steps * runs, tally="setting up the env and depth thread")
@@ -179,10 +180,12 @@ def deploy_sim(
                 tally = f"{len(reps)} of {runs} runs, {fell} fell" if runs > 1 else ""
                 progress.update(task, completed=len(reps) * steps, tally=tally)
     except KeyboardInterrupt:
-        kept = "no results written" + (", no video" if recorder is not None else "")
-        if target is not None and target.kind == "save":
-            kept += f"; the rerun recording {target.arg} holds what was streamed"
-        fail(f"deploy-sim interrupted after {done[0]:,} policy steps: {kept}", 130)
+        if runs == 1 or not reps:
+            kept = "no results written" + (", no video" if recorder is not None else "")
+            if target is not None and target.kind == "save":
+                kept += f"; the rerun recording {target.arg} holds what was streamed"
+            fail(f"deploy-sim interrupted after {done[0]:,} policy steps: {kept}", 130)
+        interrupted = True  # the finished runs are reported below
     finally:
         if stream is not None:
             stream.close()
@@ -200,6 +203,9 @@ def deploy_sim(
         print_json(result)
     else:
         out.print(_table(result) if runs == 1 else _runs_table(result["summary"]))
+    if interrupted:
+        n = len(reps)
+        fail(f"deploy-sim interrupted in run {n + 1} of {runs}: the figures are the {n} finished", 130)
     render_video(recorder)
 
 
