@@ -200,7 +200,7 @@ def eval_cmd(
         "--layouts",
         min=1,
         help="Random terrain layouts drawn at the level under test, one per env at random (discrete "
-        "and rough; training draws 2 a level).",
+        "and rough; a training run draws its config's terrain_cfg.variants_per_level).",
     ),
     actor: str | None = typer.Option(
         None,
