@@ -8,10 +8,6 @@ from pathlib import Path
 from tron1cli.evaluation.binomial import wilson_interval
 
 
-def _values(reps: list[dict], key: str) -> list[float]:
-    return [r[key] for r in reps if r.get(key) is not None]
-
-
 def runs_summary(reps: list[dict]) -> dict:
     """Survival over the runs (share and 95 % Wilson interval), every fall (seed, time, cause), and
     the worst or typical pipeline figures: depth rate range (Hz), dropped frames, worst frame-age
@@ -24,8 +20,8 @@ def runs_summary(reps: list[dict]) -> dict:
     survived = sum(r["survived"] for r in reps)
     lo, hi = wilson_interval(survived, n)
 
-    def pick(key: str, fn):
-        vals = _values(reps, key)
+    def pick(key: str, fn):  # fn over the runs that have the figure; None where none has it
+        vals = [r[key] for r in reps if r.get(key) is not None]
         return fn(vals) if vals else None
 
     return {
