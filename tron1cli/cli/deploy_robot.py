@@ -20,6 +20,7 @@ from tron1cli.cli.common import (
     terrain_help,
 )
 from tron1cli.errors import UsageError
+from tron1cli.viz.cells import figure
 
 EXIT = {"duration": 0, "interrupted": 130}  # every other end (a safety trip) exits 1
 
@@ -122,10 +123,6 @@ def deploy_robot(
     note(f"policy stopped after {rep['duration_s']:g} s; sent the damping command (Kp 0)")
 
 
-def _f(x, fmt: str = ".3f") -> str:
-    return "-" if x is None else f"{x:{fmt}}"
-
-
 def _table(rep: dict) -> Table:
     t = Table(title=f"tron1 deploy-robot: {Path(rep['policy']).name} on {rep['ip']}")
     t.add_column("figure")
@@ -134,16 +131,19 @@ def _table(rep: dict) -> Table:
         ("survived", f"{'yes' if rep['survived'] else 'NO'} ({rep['ended']})"),
         ("policy time (s)", f"{rep['duration_s']:.2f}"),
         ("command", "joystick" if rep["joystick"] else ",".join(f"{v:g}" for v in rep["command"])),
-        ("largest base tilt (rad)", _f(rep["max_tilt_rad"])),
+        ("largest base tilt (rad)", figure(rep["max_tilt_rad"])),
         (
             "latency state -> command p50 / p99 (ms)",
-            f"{_f(rep['latency_ms_p50'])} / {_f(rep['latency_ms_p99'])}",
+            f"{figure(rep['latency_ms_p50'])} / {figure(rep['latency_ms_p99'])}",
         ),
-        ("policy inference p50 / p99 (ms)", f"{_f(rep['policy_ms_p50'])} / {_f(rep['policy_ms_p99'])}"),
+        (
+            "policy inference p50 / p99 (ms)",
+            f"{figure(rep['policy_ms_p50'])} / {figure(rep['policy_ms_p99'])}",
+        ),
         ("state / IMU messages", f"{rep['state_messages']} / {rep['imu_messages']}"),
     ]
     if rep.get("depth_age_ms_p50") is not None:
-        ages = f"{_f(rep['depth_age_ms_p50'])} / {_f(rep['depth_age_ms_p99'])}"
+        ages = f"{figure(rep['depth_age_ms_p50'])} / {figure(rep['depth_age_ms_p99'])}"
         rows.append(("depth frame age p50 / p99 (ms)", ages))
     for name, value in rows:
         t.add_row(name, value)

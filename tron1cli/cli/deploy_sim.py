@@ -27,11 +27,8 @@ from tron1cli.cli.common import (
     terrain_help,
 )
 from tron1cli.deploy.runs import runs_summary, summary_rows, summary_title
+from tron1cli.viz.cells import figure
 from tron1cli.viz.rerun_stream import open_stream, parse_rerun_option
-
-
-def _f(x: float | None, fmt: str = ".3f", unit: str = "") -> str:
-    return "-" if x is None else f"{x:{fmt}}{unit}"
 
 
 def deploy_sim(
@@ -245,33 +242,36 @@ def _table(rep: dict) -> Table:
     rows = [
         ("survived", f"{'yes' if rep['survived'] else 'NO'} ({ended})"),
         ("simulated time (s)", f"{rep['duration_s']:.2f} of {rep['requested_duration_s']:g}"),
-        ("velocity tracking error |v_cmd,xy - v_xy| (m/s)", _f(rep["vel_tracking_error"])),
-        ("LIPM CoM error |p_hat - p_com| (m)", _f(rep["com_error_m"])),
-        ("CoM to ZMP |p_com - p_zmp| (m)", _f(rep["com_zmp_m"])),
-        ("CoM height error |z - z_c| (m)", _f(rep["com_height_error_m"])),
+        ("velocity tracking error |v_cmd,xy - v_xy| (m/s)", figure(rep["vel_tracking_error"])),
+        ("LIPM CoM error |p_hat - p_com| (m)", figure(rep["com_error_m"])),
+        ("CoM to ZMP |p_com - p_zmp| (m)", figure(rep["com_zmp_m"])),
+        ("CoM height error |z - z_c| (m)", figure(rep["com_height_error_m"])),
         ("pushes", str(rep["pushes"])),
-        ("policy inference p50 / p99 (ms)", f"{_f(rep['policy_ms_p50'])} / {_f(rep['policy_ms_p99'])}"),
-        ("real-time factor (sim s / wall s)", _f(rep["realtime_factor"], ".2f")),
+        (
+            "policy inference p50 / p99 (ms)",
+            f"{figure(rep['policy_ms_p50'])} / {figure(rep['policy_ms_p99'])}",
+        ),
+        ("real-time factor (sim s / wall s)", figure(rep["realtime_factor"], ".2f")),
     ]
     if rep["reconstruction_error_cm"] is not None:
-        rows.insert(6, ("heightmap reconstruction error (cm)", _f(rep["reconstruction_error_cm"], ".2f")))
+        rows.insert(6, ("heightmap reconstruction error (cm)", figure(rep["reconstruction_error_cm"], ".2f")))
     if rep["depth_frames"] is not None:
         rows += [
             (
                 "depth frames (rate, dropped)",
-                f"{rep['depth_frames']} ({_f(rep['depth_rate_hz'], '.1f')} Hz, "
+                f"{rep['depth_frames']} ({figure(rep['depth_rate_hz'], '.1f')} Hz, "
                 f"{rep['depth_dropped']} dropped)",
             ),
             (
                 "depth frame age p50 / p99 (ms of sim time)",
-                f"{_f(rep['depth_age_ms_p50'], '.1f')} / {_f(rep['depth_age_ms_p99'], '.1f')}"
+                f"{figure(rep['depth_age_ms_p50'], '.1f')} / {figure(rep['depth_age_ms_p99'], '.1f')}"
                 + (f" (+{rep['depth_latency_ms']:g} ms added)" if rep["depth_latency_ms"] else ""),
             ),
             (
                 "depth render p50 / p99 (ms)",
-                f"{_f(rep['depth_render_ms_p50'], '.2f')} / {_f(rep['depth_render_ms_p99'], '.2f')}",
+                f"{figure(rep['depth_render_ms_p50'], '.2f')} / {figure(rep['depth_render_ms_p99'], '.2f')}",
             ),
-            ("depth render hidden behind the control loop", _f(rep["depth_hidden_share"], ".0%")),
+            ("depth render hidden behind the control loop", figure(rep["depth_hidden_share"], ".0%")),
         ]
     for name, value in rows:
         t.add_row(name, value)

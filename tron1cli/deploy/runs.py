@@ -6,6 +6,7 @@ import statistics
 from pathlib import Path
 
 from tron1cli.evaluation.binomial import wilson_interval
+from tron1cli.viz.cells import figure
 
 
 def runs_summary(reps: list[dict]) -> dict:
@@ -53,10 +54,6 @@ def runs_summary(reps: list[dict]) -> dict:
     }
 
 
-def _f(x: float | None, fmt: str) -> str:
-    return "-" if x is None else format(x, fmt)
-
-
 def summary_rows(sm: dict) -> list[tuple[str, str]]:
     """(figure, value) rows of a :func:`runs_summary`, as deploy-sim's table and the card show them."""
     lo, hi = sm["survival_ci95"]
@@ -69,12 +66,12 @@ def summary_rows(sm: dict) -> list[tuple[str, str]]:
             f"{sm['survived']} of {sm['runs']} ({sm['survival']:.0%}; {lo:.0%}-{hi:.0%})",
         ),
         ("falls (seed, time, cause)", falls or "none"),
-        ("velocity tracking error, mean (m/s)", _f(sm["vel_tracking_error_mean"], ".3f")),
-        ("heightmap reconstruction error, mean (cm)", _f(sm["reconstruction_error_cm_mean"], ".2f")),
-        ("policy inference p99, worst run (ms)", _f(sm["policy_ms_p99_max"], ".3f")),
+        ("velocity tracking error, mean (m/s)", figure(sm["vel_tracking_error_mean"], ".3f")),
+        ("heightmap reconstruction error, mean (cm)", figure(sm["reconstruction_error_cm_mean"], ".2f")),
+        ("policy inference p99, worst run (ms)", figure(sm["policy_ms_p99_max"], ".3f")),
         (
             "real-time factor, slowest / median run",
-            f"{_f(sm['realtime_factor_min'], '.2f')} / {_f(sm['realtime_factor_median'], '.2f')}",
+            f"{figure(sm['realtime_factor_min'], '.2f')} / {figure(sm['realtime_factor_median'], '.2f')}",
         ),
     ]
     if sm["depth_rate_hz_min"] is not None:
@@ -84,7 +81,7 @@ def summary_rows(sm: dict) -> list[tuple[str, str]]:
                 f"{sm['depth_rate_hz_min']:.1f} / {sm['depth_rate_hz_max']:.1f}",
             ),
             ("depth frames dropped, all runs", str(sm["depth_dropped"])),
-            ("depth frame age p99, worst run (ms of sim time)", _f(sm["depth_age_ms_p99_max"], ".1f")),
+            ("depth frame age p99, worst run (ms of sim time)", figure(sm["depth_age_ms_p99_max"], ".1f")),
         ]
     return rows
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from tron1cli.deploy.runs import summary_rows, summary_title
 from tron1cli.evaluation.metric_names import EVAL_LAYOUTS, PERCENT_METRICS
 from tron1cli.evaluation.paper import PAPER_TABLE_I
-from tron1cli.viz.cells import speed_cell
+from tron1cli.viz.cells import figure, speed_cell
 
 #: Table I's columns after method: (header, eval metric, scale, decimals)
 _TABLE_I_COLUMNS = (
@@ -168,19 +168,19 @@ def deploy_markdown(rep: dict) -> str:
         rows = [("runs", summary_title(sm)), *summary_rows(sm)]
         return _header(["figure", "value"]) + "\n" + "\n".join(_row(r) for r in rows)
 
-    def f(v, spec=".3f"):
-        return "-" if v is None else format(v, spec)
-
     rows = [
         ("run", f"{Path(rep['policy']).name} on {rep['terrain_type']} level {rep['level']}"),
         ("survived", f"{'yes' if rep['survived'] else 'no'} ({rep['ended']})"),
         ("simulated time (s)", f"{rep['duration_s']:.2f} of {rep['requested_duration_s']:g}"),
-        ("velocity tracking error (m/s)", f(rep["vel_tracking_error"])),
-        ("heightmap reconstruction error (cm)", f(rep.get("reconstruction_error_cm"), ".2f")),
-        ("real-time factor", f(rep["realtime_factor"], ".2f")),
-        ("depth rate (Hz)", f(rep.get("depth_rate_hz"), ".1f")),
+        ("velocity tracking error (m/s)", figure(rep["vel_tracking_error"])),
+        ("heightmap reconstruction error (cm)", figure(rep.get("reconstruction_error_cm"), ".2f")),
+        ("real-time factor", figure(rep["realtime_factor"], ".2f")),
+        ("depth rate (Hz)", figure(rep.get("depth_rate_hz"), ".1f")),
         ("depth frames (dropped)", f"{rep.get('depth_frames')} ({rep.get('depth_dropped')})"),
-        ("policy inference p50 / p99 (ms)", f"{f(rep['policy_ms_p50'])} / {f(rep['policy_ms_p99'])}"),
+        (
+            "policy inference p50 / p99 (ms)",
+            f"{figure(rep['policy_ms_p50'])} / {figure(rep['policy_ms_p99'])}",
+        ),
     ]
     return _header(["figure", "value"]) + "\n" + "\n".join(_row(r) for r in rows)
 

@@ -1,8 +1,13 @@
-"""How a measured figure is written in a table cell, shared by ``tron1 eval``'s tables and the
-policy card's Markdown. A figure is the ``aggregate`` dict of a method's policies: ``mean``
-(None when nothing was measured), ``std`` and ``n``."""
+"""How a measured figure is written in a table cell, shared by the CLI's tables (eval,
+deploy-sim, deploy-robot) and the policy card's Markdown. For eval, a figure is the ``aggregate``
+dict of a method's policies: ``mean`` (None when nothing was measured), ``std`` and ``n``."""
 
 from __future__ import annotations
+
+
+def figure(x: float | None, fmt: str = ".3f") -> str:
+    """One figure in ``fmt`` ('0.212'), or '-' when it was not measured (None)."""
+    return "-" if x is None else format(x, fmt)
 
 
 def mean_std(m: dict, pct: bool) -> str:
